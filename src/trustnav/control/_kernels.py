@@ -1,0 +1,206 @@
+"""Compiled kernels that build the SQP subproblem of `proposed` (condensed, single shooting).
+
+For the current iterate U they fill, in place, the QP in the step dU:
+
+    min 1/2 dU' H dU + f' dU   s.t.  lo_k <= dU_k <= hi_k (simple bounds),
+                                     bl_r <= A_r dU <= bu_r  (linearised rows)
+
+The rows are first the N_h x N_p CBF rows of `cbf_imp` (row k * N_p + j, linearised with
+analytic Jacobians), then model-specific linear rows. ``g`` receives the CBF row values at U
+(>= 0 when satisfied); the return value is the cost at U.
+
+timing: 0 = pedestrian at k+1 in the h(k+1) term (the paper), 1 = at k (the authors' code).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
+
+
+@njit(cache=True, fastmath=False)
+def _cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, row0, nsimple):
+    """CBF rows from ego positions pos (N+1, 2) and their sensitivities sens (N+1, 2, n)."""
+    n_h = pos.shape[0] - 1
+    n_p = peds.shape[0]
+    n = sens.shape[2]
+    for k in range(n_h):
+        for j in range(n_p):
+            qkx = peds[j, 0] + k * dt * vels[j, 0]
+            qky = peds[j, 1] + k * dt * vels[j, 1]
+            if timing == 0:
+                qnx = qkx + dt * vels[j, 0]
+                qny = qky + dt * vels[j, 1]
+            else:
+                qnx = qkx
+                qny = qky
+            dnx = pos[k + 1, 0] - qnx
+            dny = pos[k + 1, 1] - qny
+            dkx = pos[k, 0] - qkx
+            dky = pos[k, 1] - qky
+            w = omg[j]
+            r = row0 + k * n_p + j
+            val = dnx * dnx + dny * dny - r2 - w * (dkx * dkx + dky * dky - r2)
+            g[k * n_p + j] = val
+            for i in range(n):
+                a_mat[r, i] = 2.0 * (dnx * sens[k + 1, 0, i] + dny * sens[k + 1, 1, i]) - 2.0 * w * (
+                    dkx * sens[k, 0, i] + dky * sens[k, 1, i]
+                )
+            bl[nsimple + r] = -val
+            bu[nsimple + r] = INF
+
+
+@njit(cache=True)
+def single_integrator_qp(x0, u, ubar, peds, vels, omg, r2, dt, timing, ulo, uhi, f, a_mat, bl, bu, g):
+    """Single integrator x+ = x + u dt, cost sum ||u - u_bar||^2 (H = 2 I is constant)."""
+    n_h = u.shape[0]
+    n = 2 * n_h
+    pos = np.empty((n_h + 1, 2))
+    pos[0, 0] = x0[0]
+    pos[0, 1] = x0[1]
+    sens = np.zeros((n_h + 1, 2, n))
+    cost = 0.0
+    for k in range(n_h):
+        for d in range(2):
+            pos[k + 1, d] = pos[k, d] + dt * u[k, d]
+            e = u[k, d] - ubar[k, d]
+            cost += e * e
+            f[2 * k + d] = 2.0 * e
+            bl[2 * k + d] = ulo[d] - u[k, d]
+            bu[2 * k + d] = uhi[d] - u[k, d]
+        for i in range(n):
+            sens[k + 1, 0, i] = sens[k, 0, i]
+            sens[k + 1, 1, i] = sens[k, 1, i]
+        sens[k + 1, 0, 2 * k] = dt
+        sens[k + 1, 1, 2 * k + 1] = dt
+    _cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, 0, n)
+    return cost
+
+
+@njit(cache=True)
+def _wrap(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True)
+def bicycle_qp(
+    x0,
+    u,
+    u_prev,
+    ref_pts,
+    ref_yaw,
+    ref_v,
+    weights,
+    wheelbase,
+    vmin,
+    vmax,
+    peds,
+    vels,
+    omg,
+    r2,
+    dt,
+    timing,
+    ulo,
+    uhi,
+    h_mat,
+    f,
+    a_mat,
+    bl,
+    bu,
+    g,
+):
+    """Kinematic bicycle (x, y, yaw, v; steer, accel) with the Section IV tracking cost.
+
+    Residuals (weights w = [cte, heading, speed, steer, accel, steer rate, accel rate]):
+    cross-track and heading error to the reference waypoints and speed error for k = 1..N,
+    steer and acceleration for k = 0..N-1, and their rates with u(-1) = u_prev. Gauss-Newton
+    Hessian H = 2 J' W J. Extra rows after the CBF rows: speed bounds v(k+1) in [vmin, vmax].
+    """
+    n_h = u.shape[0]
+    n = 2 * n_h
+    m_cbf = n_h * peds.shape[0]
+    xs = np.empty((n_h + 1, 4))
+    sens = np.zeros((n_h + 1, 4, n))
+    for d in range(4):
+        xs[0, d] = x0[d]
+    for k in range(n_h):
+        px, py, yaw, v = xs[k, 0], xs[k, 1], xs[k, 2], xs[k, 3]
+        st, ac = u[k, 0], u[k, 1]
+        c = math.cos(yaw)
+        s = math.sin(yaw)
+        t = math.tan(st)
+        xs[k + 1, 0] = px + v * c * dt
+        xs[k + 1, 1] = py + v * s * dt
+        xs[k + 1, 2] = yaw + v * t / wheelbase * dt
+        xs[k + 1, 3] = v + ac * dt
+        for i in range(n):
+            s0, s1, s2, s3 = sens[k, 0, i], sens[k, 1, i], sens[k, 2, i], sens[k, 3, i]
+            sens[k + 1, 0, i] = s0 - v * s * dt * s2 + c * dt * s3
+            sens[k + 1, 1, i] = s1 + v * c * dt * s2 + s * dt * s3
+            sens[k + 1, 2, i] = s2 + t / wheelbase * dt * s3
+            sens[k + 1, 3, i] = s3
+        cs = math.cos(st)
+        sens[k + 1, 2, 2 * k] += v * dt / (wheelbase * cs * cs)
+        sens[k + 1, 3, 2 * k + 1] += dt
+    # residuals r and Jacobian jr (7 N x n)
+    nr = 7 * n_h
+    r = np.zeros(nr)
+    jr = np.zeros((nr, n))
+    wv = np.empty(nr)
+    for k in range(n_h):
+        kk = k + 1
+        nx_ = -math.sin(ref_yaw[kk])
+        ny_ = math.cos(ref_yaw[kk])
+        r[k] = nx_ * (xs[kk, 0] - ref_pts[kk, 0]) + ny_ * (xs[kk, 1] - ref_pts[kk, 1])
+        r[n_h + k] = _wrap(xs[kk, 2] - ref_yaw[kk])
+        r[2 * n_h + k] = xs[kk, 3] - ref_v[kk]
+        for i in range(n):
+            jr[k, i] = nx_ * sens[kk, 0, i] + ny_ * sens[kk, 1, i]
+            jr[n_h + k, i] = sens[kk, 2, i]
+            jr[2 * n_h + k, i] = sens[kk, 3, i]
+        wv[k] = weights[0]
+        wv[n_h + k] = weights[1]
+        wv[2 * n_h + k] = weights[2]
+        for d in range(2):
+            r[(3 + d) * n_h + k] = u[k, d]
+            jr[(3 + d) * n_h + k, 2 * k + d] = 1.0
+            wv[(3 + d) * n_h + k] = weights[3 + d]
+            prev = u_prev[d] if k == 0 else u[k - 1, d]
+            r[(5 + d) * n_h + k] = u[k, d] - prev
+            jr[(5 + d) * n_h + k, 2 * k + d] = 1.0
+            if k > 0:
+                jr[(5 + d) * n_h + k, 2 * (k - 1) + d] = -1.0
+            wv[(5 + d) * n_h + k] = weights[5 + d]
+    cost = 0.0
+    for q in range(nr):
+        cost += wv[q] * r[q] * r[q]
+    for i in range(n):
+        acc = 0.0
+        for q in range(nr):
+            acc += jr[q, i] * wv[q] * r[q]
+        f[i] = 2.0 * acc
+        for l in range(i, n):
+            acc = 0.0
+            for q in range(nr):
+                acc += jr[q, i] * wv[q] * jr[q, l]
+            h_mat[i, l] = 2.0 * acc
+            h_mat[l, i] = 2.0 * acc
+        h_mat[i, i] += 1e-9
+    for k in range(n_h):
+        for d in range(2):
+            bl[2 * k + d] = ulo[d] - u[k, d]
+            bu[2 * k + d] = uhi[d] - u[k, d]
+    pos = np.ascontiguousarray(xs[:, :2])
+    psens = np.ascontiguousarray(sens[:, :2, :])
+    _cbf_fill(pos, psens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, 0, n)
+    for k in range(n_h):
+        row = m_cbf + k
+        for i in range(n):
+            a_mat[row, i] = sens[k + 1, 3, i]
+        bl[n + row] = vmin - xs[k + 1, 3]
+        bu[n + row] = vmax - xs[k + 1, 3]
+    return cost

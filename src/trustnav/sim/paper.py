@@ -1,0 +1,283 @@
+"""The paper's three numerical scenarios (Section III), closed loop, single integrator.
+
+Scenario parameters live in TOML files next to this module (``scenarios/paper-*.toml``); this
+module only loads them, runs episodes and computes metrics.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from trustnav.control import (
+    BoundedProportionalReference,
+    MpcConfig,
+    MpcController,
+    SingleIntegrator,
+    SlsqpSolver,
+    SolveStatus,
+    SqpSolver,
+    VelocityTrackingCost,
+)
+from trustnav.trust import GammaParams
+
+__all__ = [
+    "SCENARIOS",
+    "Episode",
+    "PaperScenario",
+    "Pedestrian",
+    "ScenarioResult",
+    "episode_metrics",
+    "load_scenario",
+    "run_episode",
+    "run_scenario",
+]
+
+SCENARIOS = ("paper-1", "paper-2", "paper-3")
+
+
+@dataclass(frozen=True)
+class Pedestrian:
+    position: tuple[float, float]
+    velocity: tuple[float, float] = (0.0, 0.0)
+    trust: float = 1.0
+
+
+@dataclass(frozen=True)
+class PaperScenario:
+    """One numerical scenario: world, agents, MPC and reference parameters."""
+
+    name: str
+    title: str
+    ego_start: tuple[float, float]
+    goal: tuple[float, float]
+    pedestrians: tuple[Pedestrian, ...]
+    horizons: tuple[int, ...] = (7,)
+    trust_sweep: tuple[float, ...] = ()
+    control_equal_trust: bool = False
+    compare_timings: bool = False
+    dt: float = 0.05
+    safety_radius: float = 3.0
+    gamma: GammaParams = field(default_factory=GammaParams)
+    timing: str = "paper"
+    reference_gain: float = 1.5
+    reference_v_max: float = 10.0
+    reference_mode: str = "rollout"
+    u_max: float = 20.0
+    max_steps: int = 1000
+    goal_tolerance: float = 0.25
+    world_size: tuple[float, float] = (50.0, 50.0)
+    notes: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.pedestrians:
+            raise ValueError(f"scenario {self.name}: needs at least one pedestrian")
+        if not self.horizons or any(h < 1 for h in self.horizons):
+            raise ValueError(f"scenario {self.name}: horizons must be integers >= 1, got {self.horizons}")
+        if any(not 0 <= t <= 1 for t in self.trust_sweep):
+            raise ValueError(f"scenario {self.name}: trust_sweep values must lie in [0, 1]")
+
+    def config(self, horizon: int | None = None, timing: str | None = None) -> MpcConfig:
+        return MpcConfig(
+            horizon=horizon or self.horizons[0],
+            dt=self.dt,
+            safety_radius=self.safety_radius,
+            gamma=self.gamma,
+            timing=timing or self.timing,  # type: ignore[arg-type]
+        )
+
+    def cost(self) -> VelocityTrackingCost:
+        ref = BoundedProportionalReference(self.reference_gain, self.reference_v_max, self.reference_mode)  # type: ignore[arg-type]
+        return VelocityTrackingCost(goal=self.goal, reference=ref)
+
+
+def _scenario_from_dict(d: dict[str, Any]) -> PaperScenario:
+    d = dict(d)
+    peds = tuple(
+        Pedestrian(tuple(p["position"]), tuple(p.get("velocity", (0.0, 0.0))), float(p.get("trust", 1.0)))
+        for p in d.pop("pedestrian")
+    )
+    g = d.pop("gamma", {})
+    known = set(PaperScenario.__dataclass_fields__)
+    unknown = set(d) - known
+    if unknown:
+        raise ValueError(f"scenario {d.get('name')}: unknown keys {sorted(unknown)}")
+    for key in ("ego_start", "goal", "horizons", "trust_sweep", "world_size"):
+        if key in d:
+            d[key] = tuple(d[key])
+    return PaperScenario(pedestrians=peds, gamma=GammaParams(**g), **d)
+
+
+def load_scenario(name_or_path: str | Path) -> PaperScenario:
+    """Load ``paper-1|paper-2|paper-3`` (shipped) or a TOML file of the same form."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" and path.exists():
+        text = path.read_text()
+    elif str(name_or_path) in SCENARIOS:
+        text = resources.files("trustnav.sim").joinpath(f"scenarios/{name_or_path}.toml").read_text()
+    else:
+        raise ValueError(f"unknown scenario {name_or_path!r}: expected one of {SCENARIOS} or a .toml file")
+    return _scenario_from_dict(tomllib.loads(text))
+
+
+@dataclass
+class Episode:
+    """A closed-loop run: ego path (T+1, 2), pedestrian paths (T+1, N_p, 2), per-step solver data."""
+
+    scenario: str
+    horizon: int
+    trusts: NDArray[np.float64]
+    ego: NDArray[np.float64]
+    pedestrians: NDArray[np.float64]
+    statuses: list[SolveStatus]
+    fallbacks: int
+    slack_steps: int
+    solve_times: NDArray[np.float64]
+    reached_goal: bool
+    timing: str
+
+    @property
+    def distances(self) -> NDArray[np.float64]:
+        """Ego-pedestrian distance per step (T+1, N_p)."""
+        return np.linalg.norm(self.ego[:, None, :] - self.pedestrians, axis=2)
+
+
+def run_episode(
+    scenario: PaperScenario,
+    horizon: int | None = None,
+    trusts: list[float] | NDArray[np.float64] | None = None,
+    solver: str = "sqp",
+    timing: str | None = None,
+) -> Episode:
+    """Closed loop: each step solve `proposed`, apply u(t) exactly (no latency), move pedestrians."""
+    cfg = scenario.config(horizon, timing)
+    model = SingleIntegrator(u_max=scenario.u_max)
+    slv = SlsqpSolver() if solver == "slsqp" else SqpSolver()
+    ctl = MpcController(model, scenario.cost(), cfg, slv)
+    tr = np.array([p.trust for p in scenario.pedestrians] if trusts is None else trusts, dtype=float)
+    peds = np.array([p.position for p in scenario.pedestrians], dtype=float)
+    vels = np.array([p.velocity for p in scenario.pedestrians], dtype=float)
+    goal = np.array(scenario.goal)
+    x = np.array(scenario.ego_start, dtype=float)
+    ego, ped_path, statuses, times = [x], [peds], [], []
+    fallbacks = slack = 0
+    reached = False
+    for _ in range(scenario.max_steps):
+        sol = ctl.step(x, peds, vels, tr)
+        statuses.append(sol.status)
+        times.append(sol.solve_time)
+        fallbacks += sol.fallback
+        slack += sol.slack_used
+        x = model.step(x, sol.control, cfg.dt)
+        peds = peds + vels * cfg.dt
+        ego.append(x)
+        ped_path.append(peds)
+        if np.linalg.norm(x - goal) <= scenario.goal_tolerance:
+            reached = True
+            break
+    return Episode(
+        scenario=scenario.name,
+        horizon=cfg.horizon,
+        trusts=tr,
+        ego=np.array(ego),
+        pedestrians=np.array(ped_path),
+        statuses=statuses,
+        fallbacks=fallbacks,
+        slack_steps=slack,
+        solve_times=np.array(times),
+        reached_goal=reached,
+        timing=cfg.timing,
+    )
+
+
+def episode_metrics(ep: Episode, radius: float) -> dict[str, Any]:
+    """The keys scripts rely on: min_distance (per pedestrian), steps_to_goal, margin_violations,
+    solver_failures; plus slack_steps and timing information."""
+    d = ep.distances
+    return {
+        "min_distance": [float(v) for v in d.min(axis=0)],
+        "steps_to_goal": (len(ep.ego) - 1) if ep.reached_goal else None,
+        "margin_violations": int(np.sum(np.any(d < radius - 1e-6, axis=1))),
+        "solver_failures": int(sum(s is SolveStatus.FAILED for s in ep.statuses)),
+        "fallback_steps": int(ep.fallbacks),
+        "slack_steps": int(ep.slack_steps),
+        "trusts": [float(t) for t in ep.trusts],
+        "horizon": ep.horizon,
+        "timing": ep.timing,
+        "median_solve_ms": float(np.median(ep.solve_times) * 1e3) if ep.solve_times.size else math.nan,
+    }
+
+
+def with_overrides(scenario: PaperScenario, **kw: Any) -> PaperScenario:
+    """A copy of the scenario with some fields replaced (for studies and tests)."""
+    return replace(scenario, **kw)
+
+
+@dataclass
+class ScenarioResult:
+    """Everything a scenario run produced: the metrics document and the episodes to plot."""
+
+    scenario: PaperScenario
+    metrics: dict[str, Any]
+    episodes: list[Episode]  # main runs, in the order of `runs` (or the single run)
+    control: Episode | None = None  # Scenario II equal-trust control
+    variant_episodes: dict[str, list[Episode]] = field(default_factory=dict)
+
+
+def _ordering(ep: Episode) -> dict[str, Any]:
+    """Scenario III: share of steps where the distance to the least trusted pedestrian is at least
+    the distance to the most trusted one, and the first step where it fails."""
+    d = ep.distances
+    lo, hi = int(np.argmin(ep.trusts)), int(np.argmax(ep.trusts))
+    ok = d[:, lo] >= d[:, hi] - 1e-9
+    bad = np.flatnonzero(~ok)
+    return {
+        "low_trust_farther_share": float(ok.mean()),
+        "low_trust_farther_first_failure": int(bad[0]) if bad.size else None,
+    }
+
+
+def run_scenario(scenario: PaperScenario | str, solver: str = "sqp") -> ScenarioResult:
+    """Run a paper scenario the way the paper reports it and return metrics + episodes.
+
+    paper-1: one run per value of ``trust_sweep`` (``runs``, each with ``trust``);
+    paper-2: the main run plus ``control_equal_trust`` (all trusts 1.0);
+    paper-3: one run per horizon (``runs``, each with ``horizon``), and with ``compare_timings``
+    the same for both CBF timings under ``timings``.
+    """
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    r = sc.safety_radius
+    head: dict[str, Any] = {"scenario": sc.name, "title": sc.title, "solver": solver, "timing": sc.timing,
+                            "reference": {"gain": sc.reference_gain, "v_max": sc.reference_v_max,
+                                          "mode": sc.reference_mode}}  # fmt: skip
+    if sc.trust_sweep:
+        eps = [run_episode(sc, trusts=[t] * len(sc.pedestrians), solver=solver) for t in sc.trust_sweep]
+        runs = [{"trust": t, **episode_metrics(ep, r)} for t, ep in zip(sc.trust_sweep, eps, strict=True)]
+        return ScenarioResult(sc, {**head, "runs": runs}, eps)
+    if len(sc.horizons) > 1:
+        timings = ("paper", "authors_code") if sc.compare_timings else (sc.timing,)
+        by_timing: dict[str, list[Episode]] = {
+            tm: [run_episode(sc, horizon=h, solver=solver, timing=tm) for h in sc.horizons] for tm in timings
+        }
+
+        def runs_of(eps: list[Episode]) -> list[dict[str, Any]]:
+            return [{"horizon": ep.horizon, **episode_metrics(ep, r), **_ordering(ep)} for ep in eps]
+
+        doc = {**head, "runs": runs_of(by_timing[sc.timing])}
+        if sc.compare_timings:
+            doc["timings"] = {tm: runs_of(eps) for tm, eps in by_timing.items()}
+        return ScenarioResult(sc, doc, by_timing[sc.timing], variant_episodes=by_timing)
+    ep = run_episode(sc, solver=solver)
+    doc = {**head, **episode_metrics(ep, r)}
+    control = None
+    if sc.control_equal_trust:
+        control = run_episode(sc, trusts=[1.0] * len(sc.pedestrians), solver=solver)
+        doc["control_equal_trust"] = episode_metrics(control, r)
+    return ScenarioResult(sc, doc, [ep], control=control)

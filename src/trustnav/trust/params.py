@@ -1,0 +1,102 @@
+"""Parameters of the trust estimator and of the trust-adaptive gamma, with the paper's presets."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = [
+    "MOVING_AVERAGE_TRUST",
+    "PAPER_GAMMA_CARLA",
+    "PAPER_GAMMA_NUMERICAL",
+    "PAPER_TRUST",
+    "GammaParams",
+    "TrustParams",
+]
+
+
+def _check_range(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False) -> None:
+    if not isinstance(value, (int, float)) or math.isnan(value):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    ok = (value > lo if lo_open else value >= lo) and value <= hi
+    if not ok:
+        left = "(" if lo_open else "["
+        raise ValueError(f"{name} must lie in {left}{lo}, {hi}], got {value!r}")
+
+
+@dataclass(frozen=True)
+class TrustParams:
+    """Trust-estimator constants (Section II of the paper).
+
+    rho: weights of the total score `lin_comb` for (smartphone, eye contact, pose fluctuation);
+    nu1, nu01: `smato_score`; nu2, nu02: `eye_score`; nu3, nu03: `pose_score`;
+    fluctuation_sensitivity: F in `pose_conf`; alpha, beta, beta0: `agg_trust`.
+    """
+
+    rho: tuple[float, float, float] = (0.4, 0.5, 0.1)
+    nu1: float = 0.6
+    nu01: float = 1.0
+    nu2: float = 0.10
+    nu02: float = 1.0
+    nu3: float = 0.8
+    nu03: float = 0.5
+    fluctuation_sensitivity: float = 0.25
+    alpha: float = 1.0
+    beta: float = 0.08
+    beta0: float = 0.55
+
+    def __post_init__(self) -> None:
+        rho = tuple(float(r) for r in self.rho)
+        if len(rho) != 3:
+            raise ValueError(f"rho must have 3 weights (smartphone, eye contact, pose), got {len(rho)}")
+        for i, r in enumerate(rho):
+            _check_range(f"rho[{i}]", r, 0.0, 1.0)
+        if abs(sum(rho) - 1.0) > 1e-9:
+            raise ValueError(f"rho must sum to 1 (lin_comb), got sum {sum(rho):.6g} for {rho}")
+        object.__setattr__(self, "rho", rho)
+        # The paper states nu_i, nu_0i in (0, 1]; 0 is accepted for nu1, nu2, nu3 because the
+        # paper's own "raw estimate" comparison sets the recursive constants to zero.
+        for name in ("nu1", "nu2", "nu3"):
+            _check_range(name, getattr(self, name), 0.0, 1.0)
+        for name in ("nu01", "nu02", "nu03", "beta0"):
+            _check_range(name, getattr(self, name), 0.0, 1.0, lo_open=True)
+        for name in ("alpha", "beta"):
+            _check_range(name, getattr(self, name), 0.0, 1.0)
+        f = self.fluctuation_sensitivity
+        if not isinstance(f, (int, float)) or not f > 0 or math.isinf(f):
+            raise ValueError(f"fluctuation_sensitivity (F in pose_conf) must be a positive number, got {f!r}")
+
+
+@dataclass(frozen=True)
+class GammaParams:
+    """Trust-adaptive CBF rate `weight`: gamma_j = gamma_ini + delta * trust_j ** lambda.
+
+    The conditions after `weight` (gamma_ini + delta <= 1, lambda >= 1) are enforced so that
+    gamma stays in [0, 1] for every trust in [0, 1].
+    """
+
+    gamma_ini: float = 0.03
+    delta: float = 0.08
+    lam: float = 1.5
+
+    def __post_init__(self) -> None:
+        _check_range("gamma_ini", self.gamma_ini, 0.0, 1.0, lo_open=True)
+        _check_range("delta", self.delta, 0.0, 1.0, lo_open=True)
+        if self.gamma_ini + self.delta > 1.0 + 1e-12:
+            raise ValueError(
+                f"gamma_ini + delta must be <= 1 (condition after `weight`), got "
+                f"{self.gamma_ini} + {self.delta} = {self.gamma_ini + self.delta}"
+            )
+        if not isinstance(self.lam, (int, float)) or not self.lam >= 1.0 or math.isinf(self.lam):
+            raise ValueError(f"lam (lambda in `weight`) must be a finite number >= 1, got {self.lam!r}")
+
+
+#: Section IV (CARLA) values: rho = 0.4/0.5/0.1, nu1 = 0.6, nu01 = 1, nu2 = 0.10, nu02 = 1,
+#: nu3 = 0.8, nu03 = 0.5, F = 0.25, alpha = 1, beta = 0.08, beta0 = 0.55 (monotone trust).
+PAPER_TRUST = TrustParams()
+#: `agg_trust` as a moving average (alpha + beta = 1, beta0 = 1), as described after `agg_trust`.
+MOVING_AVERAGE_TRUST = TrustParams(alpha=0.92, beta=0.08, beta0=1.0)
+#: Section III numerical simulations: gamma_ini = 0.03, delta = 0.08, lambda = 1.5.
+PAPER_GAMMA_NUMERICAL = GammaParams(gamma_ini=0.03, delta=0.08, lam=1.5)
+#: Section IV CARLA simulations: gamma_ini = 0.08, delta = 0.55, lambda = 2.
+PAPER_GAMMA_CARLA = GammaParams(gamma_ini=0.08, delta=0.55, lam=2.0)

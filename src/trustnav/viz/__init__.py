@@ -1,0 +1,1 @@
+"""Plots, animations and annotated frames. Reads results; never drives a simulation."""

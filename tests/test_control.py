@@ -1,0 +1,145 @@
+"""MPC-CBF building blocks: barrier, analytic Jacobians, solvers, statuses, validation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trustnav.control import (
+    BicycleProblem,
+    BoundedProportionalReference,
+    KinematicBicycle,
+    LaneTrackingCost,
+    MpcConfig,
+    MpcController,
+    SingleIntegrator,
+    SingleIntegratorProblem,
+    SlsqpSolver,
+    SolveStatus,
+    SqpSolver,
+    VelocityTrackingCost,
+    barrier,
+    cbf_rows,
+    make_problem,
+)
+
+
+def _si_problem(timing="paper", n_h=7, n_p=3, seed=0):
+    rng = np.random.default_rng(seed)
+    cfg = MpcConfig(horizon=n_h, timing=timing)
+    prob = SingleIntegratorProblem(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg)
+    peds = rng.uniform(5, 45, size=(n_p, 2))
+    prob.set_stage(rng.uniform(5, 45, 2), peds, rng.normal(0, 1, (n_p, 2)), rng.uniform(0, 1, n_p))
+    return prob, rng
+
+
+def _bike_problem(timing="paper", n_h=7, n_p=3, seed=0):
+    rng = np.random.default_rng(seed)
+    cfg = MpcConfig(horizon=n_h, dt=0.1, safety_radius=2.5, timing=timing)
+    prob = BicycleProblem(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
+    peds = rng.uniform([10, -8], [40, 8], size=(n_p, 2))
+    prob.set_stage([5.0, 0.5, 0.1, 6.0], peds, rng.normal(0, 1, (n_p, 2)), rng.uniform(0, 1, n_p), [0.01, 0.2])
+    return prob, rng
+
+
+def test_barrier_and_cbf_rows_follow_h_quad_and_cbf_imp():
+    assert barrier([0.0, 0.0], [[3.0, 4.0]], 3.0)[0] == pytest.approx(25 - 9)
+    ego = np.array([[0.0, 0.0], [1.0, 0.0]])
+    ped, vel = np.array([[5.0, 0.0]]), np.array([[-10.0, 0.0]])
+    dt, omg = 0.1, np.array([0.9])
+    # paper timing: pedestrian at k+1 = (4, 0) in h(k+1)
+    assert cbf_rows(ego, ped, vel, omg, 1.0, dt, "paper")[0, 0] == pytest.approx((9 - 1) - 0.9 * (25 - 1))
+    # authors' code: pedestrian at k = (5, 0) in both terms
+    assert cbf_rows(ego, ped, vel, omg, 1.0, dt, "authors_code")[0, 0] == pytest.approx((16 - 1) - 0.9 * (25 - 1))
+
+
+@pytest.mark.parametrize("maker", [_si_problem, _bike_problem])
+@pytest.mark.parametrize("timing", ["paper", "authors_code"])
+def test_compiled_qp_matches_numpy_problem_and_finite_differences(maker, timing):
+    prob, rng = maker(timing)
+    u = prob.initial_guess() + rng.normal(0, 0.3, (prob.n_h, 2))
+    u = np.clip(u, prob.ulo, prob.uhi)
+    cost = prob.build(u)
+    assert cost == pytest.approx(prob.cost_np(u), rel=1e-10, abs=1e-10)
+    rows_np = prob.constraints_np(u)
+    np.testing.assert_allclose(prob.g, rows_np[: prob.m_cbf], rtol=1e-10, atol=1e-9)
+    eps = 1e-6
+    flat = u.ravel()
+    jac_fd = np.empty((prob.m_cbf, prob.n))
+    grad_fd = np.empty(prob.n)
+    for i in range(prob.n):
+        up, dn = flat.copy(), flat.copy()
+        up[i] += eps
+        dn[i] -= eps
+        jac_fd[:, i] = (prob.constraints_np(up)[: prob.m_cbf] - prob.constraints_np(dn)[: prob.m_cbf]) / (2 * eps)
+        grad_fd[i] = (prob.cost_np(up) - prob.cost_np(dn)) / (2 * eps)
+    np.testing.assert_allclose(prob.A[: prob.m_cbf], jac_fd, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(prob.f, grad_fd, rtol=1e-5, atol=1e-5)
+
+
+def test_bicycle_first_cbf_row_does_not_depend_on_inputs():
+    prob, _ = _bike_problem()
+    prob.build(prob.initial_guess())
+    np.testing.assert_array_equal(prob.A[: prob.n_p], 0.0)
+
+
+@pytest.mark.parametrize("maker", [_si_problem, _bike_problem])
+@pytest.mark.parametrize("seed", [0, 4])  # feasible draws (others put a walker inside the margin)
+def test_sqp_and_slsqp_reach_the_same_optimum(maker, seed):
+    prob, _ = maker(n_p=2, seed=seed)
+    fast = SqpSolver().solve(prob, prob.initial_guess())
+    ref = SlsqpSolver().solve(prob, prob.initial_guess())
+    assert fast.status is SolveStatus.OPTIMAL, fast.message
+    assert ref.status is SolveStatus.OPTIMAL, ref.message
+    assert fast.cost == pytest.approx(ref.cost, rel=1e-4, abs=1e-6)
+    np.testing.assert_allclose(fast.inputs, ref.inputs, atol=1e-3)
+
+
+def test_controller_accepts_changing_pedestrian_counts():
+    cfg = MpcConfig(horizon=5)
+    ctl = MpcController(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg)
+    x = np.array([20.0, 5.0])
+    for n_p in (0, 1, 3, 2, 0):
+        peds = np.column_stack([np.linspace(15, 25, n_p), np.full(n_p, 20.0)])
+        sol = ctl.step(x, peds, np.zeros((n_p, 2)), np.full(n_p, 0.5))
+        assert sol.status is SolveStatus.OPTIMAL
+        assert sol.inputs.shape == (5, 2)
+        x = SingleIntegrator().step(x, sol.control, cfg.dt)
+
+
+def test_pedestrian_inside_margin_is_relaxed_reported_and_not_silent():
+    """A pedestrian appearing inside R in front of a fast bicycle: the first CBF row cannot be met
+    by any input, so the solver relaxes it, says so, and the plan brakes."""
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5)
+    ctl = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
+    sol = ctl.step([10.0, 0.0, 0.0, 10.0], [[11.5, 0.5]], [[0.0, 0.0]], [0.0])
+    assert sol.slack_used and sol.status is SolveStatus.RELAXED
+    assert sol.cbf_violation > 0
+    assert not sol.fallback
+    assert sol.control[1] < 0  # decelerating
+
+
+def test_invalid_inputs_and_configs_raise_clear_errors():
+    with pytest.raises(ValueError, match="horizon N_h must be an integer >= 1"):
+        MpcConfig(horizon=0)
+    with pytest.raises(ValueError, match="timing must be one of"):
+        MpcConfig(timing="later")
+    with pytest.raises(ValueError, match="reference gain Kp"):
+        BoundedProportionalReference(gain=0.0)
+    with pytest.raises(ValueError, match="no MPC problem for model"):
+        make_problem(SingleIntegrator(), LaneTrackingCost(start=(0, 0), goal=(1, 0)), MpcConfig())
+    ctl = MpcController(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)))
+    with pytest.raises(ValueError, match="one entry each"):
+        ctl.step([0.0, 0.0], [[1.0, 1.0], [2.0, 2.0]], None, [0.5])
+    with pytest.raises(ValueError, match=r"trust must lie in \[0, 1\]"):
+        ctl.step([0.0, 0.0], [[1.0, 1.0]], None, [1.5])
+    with pytest.raises(ValueError, match="single_integrator state must be 2 finite numbers"):
+        ctl.step([0.0, np.nan], [[1.0, 1.0]], None, [0.5])
+
+
+def test_reference_is_bounded_and_proportional():
+    ref = BoundedProportionalReference(gain=1.5, v_max=10.0)
+    np.testing.assert_allclose(ref.velocity([0, 0], [0, 2]), [0, 3])
+    assert np.linalg.norm(ref.velocity([0, 0], [30, 40])) == pytest.approx(10.0)
+    v = ref.velocities([0, 0], [0, 2], 20, 0.05)
+    assert np.all(np.diff(v[:, 1]) < 0)  # rollout slows down along the horizon
