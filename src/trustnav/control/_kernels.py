@@ -204,3 +204,22 @@ def bicycle_qp(
         bl[n + row] = vmin - xs[k + 1, 3]
         bu[n + row] = vmax - xs[k + 1, 3]
     return cost
+
+
+@njit(cache=True)
+def reference_velocities(x0, goal, gain, v_max, dt, rollout, out):
+    """Bounded proportional reference over the horizon (see BoundedProportionalReference)."""
+    px, py = x0[0], x0[1]
+    for k in range(out.shape[0]):
+        vx = gain * (goal[0] - px)
+        vy = gain * (goal[1] - py)
+        nrm = math.sqrt(vx * vx + vy * vy)
+        if nrm > v_max:
+            vx *= v_max / nrm
+            vy *= v_max / nrm
+        if k > 0 and not rollout:
+            vx, vy = out[0, 0], out[0, 1]
+        out[k, 0] = vx
+        out[k, 1] = vy
+        px += vx * dt
+        py += vy * dt

@@ -48,7 +48,7 @@ class DynamicsModel:
 
     def check_state(self, x: ArrayLike) -> NDArray[np.float64]:
         arr = np.asarray(x, dtype=float).reshape(-1)
-        if arr.shape != (self.nx,) or not np.all(np.isfinite(arr)):
+        if arr.shape != (self.nx,) or not math.isfinite(arr.sum()):
             raise ValueError(f"{self.name} state must be {self.nx} finite numbers, got {x!r}")
         return arr
 
@@ -72,6 +72,14 @@ class SingleIntegrator(DynamicsModel):
 
     def jacobians(self, x: ArrayLike, u: ArrayLike, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return np.eye(2), dt * np.eye(2)
+
+    def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
+        u = np.asarray(inputs, dtype=float).reshape(-1, 2)
+        xs = np.empty((u.shape[0] + 1, 2))
+        xs[0] = x0
+        np.cumsum(u * dt, axis=0, out=xs[1:])
+        xs[1:] += xs[0]
+        return xs
 
     def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return np.full(2, -self.u_max), np.full(2, self.u_max)

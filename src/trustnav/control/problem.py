@@ -127,7 +127,7 @@ def _as_pedestrians(pedestrians: ArrayLike, velocities: ArrayLike | None, trusts
         raise ValueError(
             f"pedestrians ({n_p}), velocities ({vels.shape[0]}) and trusts ({tr.shape[0]}) must have one entry each"
         )
-    if not (np.all(np.isfinite(peds)) and np.all(np.isfinite(vels))):
+    if not math.isfinite(peds.sum() + vels.sum()):
         raise ValueError("pedestrian positions and velocities must be finite")
     return peds, vels, tr
 

@@ -14,6 +14,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from trustnav.control._kernels import reference_velocities
+
 __all__ = ["BoundedProportionalReference"]
 
 
@@ -48,15 +50,12 @@ class BoundedProportionalReference:
         return v * (self.v_max / n) if n > self.v_max else v
 
     def velocities(self, position: ArrayLike, goal: ArrayLike, steps: int, dt: float) -> NDArray[np.float64]:
-        """u_bar over the horizon, shape (steps, 2)."""
+        """u_bar over the horizon, shape (steps, 2) (compiled loop)."""
         out = np.empty((steps, 2))
-        x = np.asarray(position, dtype=float).copy()
-        for k in range(steps):
-            out[k] = self.velocity(x, goal)
-            if self.mode == "rollout":
-                x = x + out[k] * dt
-        if self.mode == "hold":
-            out[:] = out[0]
+        reference_velocities(
+            np.asarray(position, dtype=float), np.asarray(goal, dtype=float), self.gain, self.v_max, dt,
+            self.mode == "rollout", out,
+        )  # fmt: skip
         return out
 
     def lane_waypoints(

@@ -7,6 +7,7 @@ CBF rows are evaluated exactly at the returned inputs and their worst violation 
 from __future__ import annotations
 
 import enum
+import math
 import time
 from dataclasses import dataclass
 
@@ -107,7 +108,11 @@ class SqpSolver:
                 return None, flag
             self._models[key] = model
         else:
-            flag = model.update(H=h, f=f, A=a, bupper=bu, blower=bl)
+            # H of a linear model's problem is constant: leave it (and its factorisation) in place
+            if p.nonlinear or relaxed:
+                flag = model.update(H=h, f=f, A=a, bupper=bu, blower=bl)
+            else:
+                flag = model.update(f=f, A=a, bupper=bu, blower=bl)
             if flag is not None and flag < 0:
                 return None, flag
         x, _, exitflag, _ = model.solve()
@@ -118,8 +123,7 @@ class SqpSolver:
     def solve(self, problem: MpcProblem, u0: NDArray[np.float64]) -> SolveResult:
         t0 = time.perf_counter()
         p = problem
-        u = np.array(u0, dtype=float, copy=True).reshape(p.n_h, -1)
-        np.clip(u, p.ulo, p.uhi, out=u)
+        u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
         relaxed = False
         converged = False
         message = ""
@@ -146,12 +150,13 @@ class SqpSolver:
                     if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
                         break
                     alpha *= 0.5
-            u = np.clip(u + alpha * d, p.ulo, p.uhi)
-            if float(np.max(np.abs(alpha * d))) < self.tol:
+            # the QP keeps u + d within the input bounds (to DAQP's tolerance)
+            u += alpha * d
+            if alpha * float(np.abs(d).max()) < self.tol:
                 converged = True
                 break
         cost, viol = _check(p, u)
-        if not np.all(np.isfinite(u)) or not np.isfinite(cost):
+        if not math.isfinite(u.sum() + cost):
             return SolveResult(u, SolveStatus.FAILED, it, cost, viol, relaxed, "non-finite iterate",
                                time.perf_counter() - t0)  # fmt: skip
         slack_used = viol > FEAS_TOL
@@ -169,21 +174,28 @@ class SqpSolver:
 class SlsqpSolver:
     """Reference baseline: scipy SLSQP on Python closures, written as the paper's code does it.
 
-    By default the gradients are finite differences (no ``jac`` given), as in the authors' code.
-    It has no relaxation: an infeasible problem is reported as FAILED.
+    Gradients are finite differences (no ``jac`` given). By default all rows are one vectorised
+    numpy function (the faster, conservative baseline); ``per_row=True`` makes every CBF row its
+    own closure that rolls the horizon out again (10-100x slower still). No relaxation: an
+    infeasible problem is reported as FAILED.
     """
 
     name = "slsqp"
 
-    def __init__(self, ftol: float = 1e-10, max_iter: int = 500) -> None:
+    def __init__(self, ftol: float = 1e-10, max_iter: int = 500, per_row: bool = False) -> None:
         self.ftol = ftol
         self.max_iter = max_iter
+        self.per_row = per_row
 
     def solve(self, problem: MpcProblem, u0: NDArray[np.float64]) -> SolveResult:
         t0 = time.perf_counter()
         p = problem
         bounds = list(zip(p.lo, p.hi, strict=True))
-        cons = [{"type": "ineq", "fun": p.constraints_np}] if p.m > 0 else []
+        if self.per_row:
+            n_rows = p.constraints_np(np.asarray(u0, dtype=float).reshape(-1)).size
+            cons = [{"type": "ineq", "fun": lambda u, r=r: p.constraints_np(u)[r]} for r in range(n_rows)]
+        else:
+            cons = [{"type": "ineq", "fun": p.constraints_np}] if p.m > 0 else []
         x0 = np.clip(np.asarray(u0, dtype=float).reshape(-1), p.lo, p.hi)
         res = minimize(p.cost_np, x0, method="SLSQP", bounds=bounds, constraints=cons,
                        options={"ftol": self.ftol, "maxiter": self.max_iter})  # fmt: skip

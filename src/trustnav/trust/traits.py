@@ -158,6 +158,6 @@ def gamma(trust: ArrayLike, p: GammaParams) -> NDArray[np.float64]:
     GammaParams) the result lies in [gamma_ini, gamma_ini + delta] within [0, 1].
     """
     t = np.asarray(trust, dtype=float)
-    if np.any(~np.isfinite(t)) or np.any(t < 0.0) or np.any(t > 1.0):
+    if t.size and not (t.min() >= 0.0 and t.max() <= 1.0):  # NaN fails both comparisons
         raise ValueError(f"trust must lie in [0, 1], got {trust!r}")
     return p.gamma_ini + p.delta * np.power(t, p.lam)
