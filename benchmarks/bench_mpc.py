@@ -76,12 +76,12 @@ def _episode(model, x0, peds, trusts, cfg, cost, solver, steps):
     return np.array(path), np.array(times), failures
 
 
-def run_case(model_name, n_p, n_h, seed, steps, baseline_steps):
+def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False):
     model, x0, peds, trusts, cfg, cost = _setup(model_name, n_p, n_h, seed)
     # warm-up (numba compilation, DAQP allocation) outside the timed episode
     _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), 2)
     p_def, t_def, f_def = _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), steps)
-    p_base, t_base, f_base = _episode(model, x0, peds, trusts, cfg, cost, SlsqpSolver(), baseline_steps)
+    p_base, t_base, f_base = _episode(model, x0, peds, trusts, cfg, cost, SlsqpSolver(per_row=per_row), baseline_steps)
     k = min(len(p_def), len(p_base))
     diff = float(np.max(np.abs(p_def[:k, :2] - p_base[:k, :2])))
     med_b, med_d = float(np.median(t_base) * 1e3), float(np.median(t_def) * 1e3)
@@ -108,6 +108,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="subset, few baseline steps (< 1 min)")
     ap.add_argument("--json", help="write the rows to this file")
     ap.add_argument("--steps", type=int, default=100, help="closed-loop steps of the default controller")
+    ap.add_argument("--per-row-baseline", action="store_true", help="baseline with one closure per CBF row (slower)")
     args = ap.parse_args()
     if args.quick:
         cases = [("single_integrator", 2, 7, "paper-2", 20), ("single_integrator", 2, 7, 1, 20),
@@ -124,7 +125,7 @@ def main() -> None:
           "max traj. diff | failures (default / baseline) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|")
     for model, n_p, n_h, seed, bsteps in cases:
-        r = run_case(model, n_p, n_h, seed, args.steps, bsteps)
+        r = run_case(model, n_p, n_h, seed, args.steps, bsteps, args.per_row_baseline)
         rows.append(r)
         case = r["case"] if r["case"] == "paper-2" else f"seed {r['case']}"
         base = f"{r['baseline_median_ms']:.2f} / {r['baseline_p95_ms']:.2f}"
