@@ -24,6 +24,7 @@ from trustnav.control import (
     MpcController,
     SingleIntegrator,
     SlsqpSolver,
+    SolveStatus,
     SqpSolver,
     VelocityTrackingCost,
 )
@@ -65,23 +66,25 @@ def _episode(model, x0, peds, trusts, cfg, cost, solver, steps):
     ctl = MpcController(model, cost, cfg, solver)
     vels = np.zeros_like(peds)
     x = x0.copy()
-    path, times, failures = [x], [], 0
+    path, times, failures, unconverged = [x], [], 0, 0
     for _ in range(steps):
         t0 = time.perf_counter()
         sol = ctl.step(x, peds, vels, trusts)
         times.append(time.perf_counter() - t0)
-        failures += sol.fallback or not sol.status.ok
+        failures += sol.fallback or sol.status is SolveStatus.FAILED
+        unconverged += sol.status is SolveStatus.MAX_ITER
         x = model.step(x, sol.control, cfg.dt)
         path.append(x)
-    return np.array(path), np.array(times), failures
+    return np.array(path), np.array(times), failures, unconverged
 
 
 def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False):
     model, x0, peds, trusts, cfg, cost = _setup(model_name, n_p, n_h, seed)
     # warm-up (numba compilation, DAQP allocation) outside the timed episode
     _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), 2)
-    p_def, t_def, f_def = _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), steps)
-    p_base, t_base, f_base = _episode(model, x0, peds, trusts, cfg, cost, SlsqpSolver(per_row=per_row), baseline_steps)
+    p_def, t_def, f_def, u_def = _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), steps)
+    baseline = SlsqpSolver(per_row=per_row)
+    p_base, t_base, f_base, _ = _episode(model, x0, peds, trusts, cfg, cost, baseline, baseline_steps)
     k = min(len(p_def), len(p_base))
     diff = float(np.max(np.abs(p_def[:k, :2] - p_base[:k, :2])))
     med_b, med_d = float(np.median(t_base) * 1e3), float(np.median(t_def) * 1e3)
@@ -97,6 +100,7 @@ def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False):
         "speedup": med_b / med_d,
         "max_trajectory_diff": diff,
         "failures": int(f_def),
+        "unconverged_checked_feasible": int(u_def),
         "baseline_failures": int(f_base),
         "default_steps": len(t_def),
         "baseline_steps": len(t_base),
