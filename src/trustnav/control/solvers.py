@@ -128,8 +128,11 @@ class SqpSolver:
         converged = False
         message = ""
         it = 0
+        fresh = False  # True when the problem's buffers already hold the data at u (accepted trial)
         for it in range(1, self.max_iter + 1):
-            cost = p.build(u)
+            if not fresh:
+                cost = p.build(u)
+            fresh = False
             step, flag = self._qp(p, relaxed)
             if step is None and not relaxed and p.m_cbf > 0:
                 relaxed = True
@@ -150,8 +153,10 @@ class SqpSolver:
                     if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
                         break
                     alpha *= 0.5
-            # the QP keeps u + d within the input bounds (to DAQP's tolerance)
-            u += alpha * d
+                u, cost, fresh = trial, c1, True  # the last build was at this trial: reuse it
+            else:
+                # the QP keeps u + d within the input bounds (to DAQP's tolerance)
+                u += alpha * d
             if alpha * float(np.abs(d).max()) < self.tol:
                 converged = True
                 break
