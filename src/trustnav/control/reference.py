@@ -44,10 +44,8 @@ class BoundedProportionalReference:
         return min(self.v_max, self.gain * distance)
 
     def velocity(self, position: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]:
-        e = np.asarray(goal, dtype=float) - np.asarray(position, dtype=float)
-        v = self.gain * e
-        n = float(np.hypot(v[0], v[1]))
-        return v * (self.v_max / n) if n > self.v_max else v
+        """u_bar at one position (the first step of :meth:`velocities`)."""
+        return self.velocities(position, goal, 1, 0.0)[0]
 
     def velocities(self, position: ArrayLike, goal: ArrayLike, steps: int, dt: float) -> NDArray[np.float64]:
         """u_bar over the horizon, shape (steps, 2) (compiled loop)."""
