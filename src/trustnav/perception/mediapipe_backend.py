@@ -1,0 +1,450 @@
+"""Default pose backend: MediaPipe BlazePose (pinned ``mediapipe==0.10.14``), many people per frame, offline.
+
+MediaPipe's legacy Pose solution follows one person. Here its two stages run as separate graphs
+built from the calculators that ship in the wheel (no model download, no jax):
+
+1. ``PoseDetectionCpu`` (``pose_detection.tflite``) over the whole frame and over overlapping
+   tiles at several scales, so small and far people are found; detections from all tiles are mapped
+   back to the frame and duplicates merged;
+2. ``PoseLandmarkByRoiCpu`` (``pose_landmark_full.tflite``) once per person region, giving 33
+   landmarks, mapped to COCO's 17 with :data:`BLAZEPOSE_TO_COCO`.
+
+People are then checked for an upright body (pedestrians stand or walk: head above shoulders above
+hips, torso near vertical, taller than wide), which removes boxes on non-persons, and duplicates are
+merged once more on their landmark boxes. In video mode (:meth:`MediaPipePoseBackend.reset` between
+videos) a person found in one frame is followed in the next from the region of its own landmarks,
+as MediaPipe does, and the tiled detector may run only every ``detect_every`` frames.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import queue
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from trustnav.perception.confidence import occlusion_confidences
+from trustnav.perception.types import Person, check_frame
+
+__all__ = ["BLAZEPOSE_TO_COCO", "MEDIAPIPE_VERSION", "MediaPipeConfig", "MediaPipePoseBackend", "load_mediapipe"]
+
+MEDIAPIPE_VERSION = "0.10.14"
+BLAZEPOSE_TO_COCO: tuple[int, ...] = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+
+INSTALL_HINT = (
+    f"the default pose backend needs mediapipe=={MEDIAPIPE_VERSION}; install it with "
+    f"`pip install --no-deps mediapipe=={MEDIAPIPE_VERSION}` (trustnav already depends on what it uses; "
+    f"a plain `pip install mediapipe=={MEDIAPIPE_VERSION}` also works but pulls jax, ~380 MB, that is not used)"
+)
+
+_DETECTOR_GRAPH = """
+input_stream: "IMAGE:image"
+output_stream: "DETECTIONS:detections"
+node { calculator: "PoseDetectionCpu" input_stream: "IMAGE:image" output_stream: "DETECTIONS:detections" }
+"""
+
+_LANDMARK_GRAPH = """
+input_stream: "IMAGE:image"
+input_stream: "ROI:roi"
+output_stream: "LANDMARKS:landmarks"
+output_stream: "AUXILIARY_LANDMARKS:auxiliary"
+node {
+  calculator: "ConstantSidePacketCalculator"
+  output_side_packet: "PACKET:0:model_complexity"
+  output_side_packet: "PACKET:1:enable_segmentation"
+  options { [mediapipe.ConstantSidePacketCalculatorOptions.ext] {
+    packet { int_value: 1 } packet { bool_value: false } } }
+}
+node {
+  calculator: "PoseLandmarkByRoiCpu"
+  input_stream: "IMAGE:image"
+  input_stream: "ROI:roi"
+  output_stream: "LANDMARKS:landmarks"
+  output_stream: "AUXILIARY_LANDMARKS:auxiliary"
+  output_stream: "WORLD_LANDMARKS:world_landmarks"
+  output_stream: "SEGMENTATION_MASK:segmentation_mask"
+  input_side_packet: "MODEL_COMPLEXITY:model_complexity"
+  input_side_packet: "ENABLE_SEGMENTATION:enable_segmentation"
+}
+"""
+
+
+def load_mediapipe() -> Any:
+    """Import mediapipe (quietly) and check its version; ImportError with the install command if absent."""
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    # mediapipe 0.10.14 calls a protobuf API that warns on every frame; silence just that warning
+    warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import mediapipe
+            from mediapipe.python import solution_base  # noqa: F401
+    except ImportError as exc:
+        raise ImportError(INSTALL_HINT) from exc
+    if mediapipe.__version__ != MEDIAPIPE_VERSION:
+        raise ImportError(f"found mediapipe {mediapipe.__version__}, but {INSTALL_HINT}")
+    return mediapipe
+
+
+@dataclass(frozen=True)
+class MediaPipeConfig:
+    """Tiling, thresholds and video behaviour of :class:`MediaPipePoseBackend`.
+
+    tile_fractions: tile sides as fractions of the frame's shorter side (1.0 = square tiles as tall as
+    the frame); the whole frame is always searched too. tile_overlap: overlap between neighbouring tiles.
+    min_tile_px: smallest tile side searched (the detector sees 224 x 224).
+    scan_frames: in video mode, the tiles are shared out over this many consecutive frames (the whole
+    frame is searched every frame; people already found are followed from their landmarks meanwhile).
+    workers: MediaPipe graphs run in this many threads (each graph runs on one core).
+    """
+
+    tile_fractions: tuple[float, ...] = (1.0, 0.5, 0.33)
+    tile_overlap: float = 0.4
+    min_tile_px: int = 96
+    min_presence: float = 0.5
+    duplicate_iou: float = 0.45
+    upright_check: bool = True
+    max_torso_tilt_deg: float = 35.0
+    max_hip_offset: float = 0.25
+    min_aspect: float = 1.3
+    scan_frames: int = 1
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        if not self.tile_fractions or any(not 0.0 < f <= 1.0 for f in self.tile_fractions):
+            raise ValueError(f"tile_fractions must be non-empty, each in (0, 1], got {self.tile_fractions!r}")
+        if not 0.0 <= self.tile_overlap < 0.9:
+            raise ValueError(f"tile_overlap must be in [0, 0.9), got {self.tile_overlap!r}")
+        if self.min_tile_px < 16:
+            raise ValueError(f"min_tile_px must be >= 16, got {self.min_tile_px!r}")
+        if not 0.0 <= self.min_presence <= 1.0:
+            raise ValueError(f"min_presence must be in [0, 1], got {self.min_presence!r}")
+        if not 0.0 < self.duplicate_iou <= 1.0:
+            raise ValueError(f"duplicate_iou must be in (0, 1], got {self.duplicate_iou!r}")
+        if not 0.0 < self.max_hip_offset <= 1.0:
+            raise ValueError(f"max_hip_offset must be in (0, 1], got {self.max_hip_offset!r}")
+        if self.min_aspect < 0.0:
+            raise ValueError(f"min_aspect must be >= 0, got {self.min_aspect!r}")
+        if not 0.0 < self.max_torso_tilt_deg <= 90.0:
+            raise ValueError(f"max_torso_tilt_deg must be in (0, 90], got {self.max_torso_tilt_deg!r}")
+        if self.scan_frames < 1:
+            raise ValueError(f"scan_frames must be >= 1, got {self.scan_frames!r}")
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers!r}")
+
+
+def tiles(height: int, width: int, config: MediaPipeConfig) -> list[tuple[int, int, int, int]]:
+    """Search windows (x0, y0, x1, y1): the whole frame, then overlapping square tiles per scale."""
+    out = [(0, 0, width, height)]
+    short = min(height, width)
+    for frac in config.tile_fractions:
+        side = round(frac * short)
+        if side < config.min_tile_px:
+            continue
+        stride = side * (1.0 - config.tile_overlap)
+        xs = _starts(width, side, stride)
+        ys = _starts(height, side, stride)
+        out.extend((x, y, x + side, y + side) for y in ys for x in xs)
+    return list(dict.fromkeys(out))
+
+
+def _starts(length: int, side: int, stride: float) -> list[int]:
+    if side >= length:
+        return [0]
+    n = math.ceil((length - side) / stride) + 1
+    return [round(v) for v in np.linspace(0, length - side, n)]
+
+
+def roi_from_alignment(center: NDArray, scale_point: NDArray) -> NDArray[np.float64]:
+    """Person region as MediaPipe computes it from two alignment points (pixels).
+
+    Square of side 2.5 |scale_point - center| centred on ``center``, rotated so that the
+    centre -> scale-point direction is upright. Returns [cx, cy, side, rotation] (pixels, radians).
+    """
+    dx, dy = float(scale_point[0] - center[0]), float(scale_point[1] - center[1])
+    rotation = math.pi / 2 - math.atan2(-dy, dx)
+    rotation = rotation - 2 * math.pi * math.floor((rotation + math.pi) / (2 * math.pi))
+    side = 2.0 * math.hypot(dx, dy) * 1.25
+    return np.array([center[0], center[1], side, rotation])
+
+
+def box_iou(a: NDArray, b: NDArray) -> float:
+    """Intersection over union of two [x1, y1, x2, y2] boxes."""
+    iw = min(a[2], b[2]) - max(a[0], b[0])
+    ih = min(a[3], b[3]) - max(a[1], b[1])
+    if iw <= 0 or ih <= 0:
+        return 0.0
+    inter = iw * ih
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
+class _Graphs:
+    """One detector graph and one landmark graph; each runs single-threaded, so one per worker."""
+
+    def __init__(self) -> None:
+        from google.protobuf import text_format
+        from mediapipe.framework import calculator_pb2
+        from mediapipe.framework.formats import rect_pb2
+        from mediapipe.python import solution_base
+
+        def graph(text: str) -> Any:
+            config = text_format.Parse(text, calculator_pb2.CalculatorGraphConfig())
+            return solution_base.SolutionBase(graph_config=config)
+
+        self.detector = graph(_DETECTOR_GRAPH)
+        self.landmarker = graph(_LANDMARK_GRAPH)
+        self.rect = rect_pb2.NormalizedRect
+
+    def detect(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> list[tuple[NDArray, float]]:
+        """Person regions found in one window of the frame, in frame pixels."""
+        h, w = frame.shape[:2]
+        x0, y0, x1, y1 = window
+        tile = frame if window == (0, 0, w, h) else np.ascontiguousarray(frame[y0:y1, x0:x1])
+        out = []
+        for det in self.detector.process({"image": tile}).detections or []:
+            kps = det.location_data.relative_keypoints
+            tw, th = x1 - x0, y1 - y0
+            center = np.array([x0 + kps[0].x * tw, y0 + kps[0].y * th])
+            scale = np.array([x0 + kps[1].x * tw, y0 + kps[1].y * th])
+            box = det.location_data.relative_bounding_box
+            face = [x0 + (box.xmin + box.width / 2) * tw, y0 + (box.ymin + box.height / 2) * th]
+            face_size = max(box.width * tw, box.height * th)
+            out.append((np.r_[roi_from_alignment(center, scale), face, face_size], float(det.score[0])))
+        return out
+
+    def landmarks_of_group(self, frame: NDArray[np.uint8], rois: NDArray[np.float64], tries: int = 3) -> tuple | None:
+        """Landmarks from the first of a person's candidate regions that the landmark model accepts."""
+        for roi in rois[:tries]:
+            res = self.landmarks(frame, roi)
+            if res is not None:
+                return res
+        return None
+
+    def landmarks(self, frame: NDArray[np.uint8], roi: NDArray[np.float64]) -> tuple[NDArray, NDArray] | None:
+        """33 landmarks (x, y, z in pixels, visibility, presence) and the region to follow them next frame."""
+        h, w = frame.shape[:2]
+        rect = self.rect(
+            x_center=float(roi[0] / w),
+            y_center=float(roi[1] / h),
+            width=float(roi[2] / w),
+            height=float(roi[2] / h),
+            rotation=float(roi[3]),
+        )
+        out = self.landmarker.process({"image": frame, "roi": rect})
+        if out.landmarks is None:
+            return None
+        lm = np.array([(p.x * w, p.y * h, p.z * w, p.visibility, p.presence) for p in out.landmarks.landmark])
+        aux = out.auxiliary.landmark
+        nxt = roi_from_alignment(np.array([aux[0].x * w, aux[0].y * h]), np.array([aux[1].x * w, aux[1].y * h]))
+        return lm, np.r_[nxt, np.nan, np.nan, np.nan], roi
+
+    def landmarks_or_redetect(self, frame: NDArray[np.uint8], rois: NDArray[np.float64]) -> tuple | None:
+        """Landmarks from a person's regions; if none, search a window around the first once more."""
+        res = self.landmarks_of_group(frame, rois)
+        if res is not None:
+            return res
+        h, w = frame.shape[:2]
+        roi = rois[0]
+        half = 0.75 * roi[2]
+        x0, y0 = max(0, round(roi[0] - half)), max(0, round(roi[1] - half))
+        x1, y1 = min(w, round(roi[0] + half)), min(h, round(roi[1] + half))
+        if x1 - x0 < 16 or y1 - y0 < 16:
+            return None
+        found = sorted(self.detect(frame, (x0, y0, x1, y1)), key=lambda r: -r[1])
+        if not found:
+            return None
+        return self.landmarks_of_group(frame, np.vstack([r for r, _ in found]), tries=2)
+
+    def close(self) -> None:
+        self.detector.close()
+        self.landmarker.close()
+
+
+class MediaPipePoseBackend:
+    """Multi-person BlazePose: tiled detection + per-person landmarks (see module docstring).
+
+    ``video=True`` follows people from frame to frame (call :meth:`reset` before another video);
+    ``last_timing`` holds the seconds spent in detection and landmarks on the latest frame.
+    """
+
+    def __init__(self, config: MediaPipeConfig | None = None, *, video: bool = False) -> None:
+        self.config = config or MediaPipeConfig()
+        self.video = video
+        load_mediapipe()
+        self._graphs: queue.SimpleQueue[_Graphs] = queue.SimpleQueue()
+        self._all_graphs = [_Graphs() for _ in range(self.config.workers)]
+        for g in self._all_graphs:
+            self._graphs.put(g)
+        self._executor = ThreadPoolExecutor(max_workers=self.config.workers, thread_name_prefix="mediapipe")
+        self._followed: list[tuple[NDArray[np.float64], float]] = []
+        self._frame_index = 0
+        self.last_timing: dict[str, float] = {}
+
+    def reset(self) -> None:
+        """Forget the people followed from the previous frame (call between videos)."""
+        self._followed = []
+        self._frame_index = 0
+
+    def close(self) -> None:
+        """Stop the worker threads and release the graphs."""
+        self._executor.shutdown()
+        for g in self._all_graphs:
+            g.close()
+
+    def __enter__(self) -> MediaPipePoseBackend:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _map(self, fn: Any, items: list[Any]) -> list[Any]:
+        def task(item: Any) -> Any:
+            g = self._graphs.get()
+            try:
+                return fn(g, item)
+            finally:
+                self._graphs.put(g)
+
+        if len(items) <= 1 or self.config.workers == 1:
+            return [task(i) for i in items]
+        return list(self._executor.map(task, items))
+
+    def detect(self, frame: NDArray[np.uint8], windows: list[tuple[int, int, int, int]] | None = None) -> list:
+        """Person regions [cx, cy, side, rotation, face x, face y, face size] (pixels; face NaN for a
+        region followed from landmarks) as groups of candidates per person, with detection scores."""
+        if windows is None:
+            windows = tiles(frame.shape[0], frame.shape[1], self.config)
+        return _merge_regions(self._detect_all(frame, windows))
+
+    def _detect_all(self, frame: NDArray[np.uint8], windows: list[tuple[int, int, int, int]]) -> list:
+        found = self._map(lambda g, win: g.detect(frame, win), windows)
+        return [r for rs in found for r in rs]
+
+    def __call__(self, frame: NDArray[np.uint8]) -> list[Person]:
+        """People in ``frame`` (H x W x 3 uint8 RGB)."""
+        frame = check_frame(frame)
+        h, w = frame.shape[:2]
+        t0 = time.perf_counter()
+        windows = tiles(h, w, self.config)
+        if self.video and self.config.scan_frames > 1 and self._frame_index > 0:
+            k = self._frame_index % self.config.scan_frames
+            windows = [windows[0]] + windows[1:][k :: self.config.scan_frames]
+        followed = self._followed if self.video else []
+        regions = _merge_regions(list(followed) + self._detect_all(frame, windows))
+        t1 = time.perf_counter()
+        results = self._map(lambda g, region: g.landmarks_or_redetect(frame, region[0]), regions)
+        people: list[Person] = []
+        nxt: list[tuple[NDArray[np.float64], float]] = []
+        for (_, score), res in zip(regions, results, strict=True):
+            if res is None:
+                continue
+            person = self._person(res[0], score, w, h, res[2])
+            if person is not None:
+                people.append(person)
+                nxt.append((res[1], score))
+        keep = _nms([p.bbox for p in people], [p.score for p in people], self.config.duplicate_iou)
+        self._followed = [nxt[i] for i in keep]
+        self._frame_index += 1
+        self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
+        return [people[i] for i in keep]
+
+    def _person(self, lm: NDArray[np.float64], score: float, w: int, h: int, roi: NDArray) -> Person | None:
+        body = lm[11:29]
+        presence = float(np.mean(body[:, 4]))
+        if presence < self.config.min_presence:
+            return None
+        # the landmark model must find the body where the region put it (hips near the region's
+        # centre); a fit far from it is the model hallucinating a body on the background
+        hips = lm[[23, 24], :2].mean(axis=0)
+        if math.hypot(*(hips - roi[:2])) > self.config.max_hip_offset * roi[2]:
+            return None
+        # a region from the detector also says where the face is: the nose must be there
+        if np.isfinite(roi[4]) and math.hypot(*(lm[0, :2] - roi[4:6])) > roi[6]:
+            return None
+        if self.config.upright_check and not is_upright(lm, self.config.max_torso_tilt_deg):
+            return None
+        pts = lm[:, :2]
+        x1, y1 = np.clip(pts.min(axis=0), 0, [w - 1, h - 1])
+        x2, y2 = np.clip(pts.max(axis=0), 0, [w - 1, h - 1])
+        if x2 - x1 < 2 or (y2 - y1) < self.config.min_aspect * (x2 - x1):
+            return None  # pedestrians are taller than wide; a portrait on a poster is not
+        coco = lm[list(BLAZEPOSE_TO_COCO)]
+        return Person(
+            bbox=np.array([x1, y1, x2, y2]),
+            keypoints=coco[:, :2].copy(),
+            confidences=occlusion_confidences(lm),
+            score=float(min(1.0, score)) * presence,
+            extra={"blazepose": lm},
+        )
+
+
+def is_upright(lm: NDArray[np.float64], max_tilt_deg: float = 35.0) -> bool:
+    """Pedestrian check on 33 BlazePose landmarks (pixels): head above shoulders above hips above
+    knees, torso within ``max_tilt_deg`` of vertical, shoulders narrower than the torso is long and
+    wider than the head."""
+    nose = lm[0, :2]
+    shoulders = lm[[11, 12], :2].mean(axis=0)
+    hips = lm[[23, 24], :2].mean(axis=0)
+    knees = lm[[25, 26], :2].mean(axis=0)
+    torso = hips - shoulders
+    torso_len = float(np.hypot(*torso))
+    if torso_len < 1e-6 or torso[1] <= 0:
+        return False
+    tilt = math.degrees(math.atan2(abs(torso[0]), torso[1]))
+    if tilt > max_tilt_deg:
+        return False
+    if nose[1] >= shoulders[1] or knees[1] <= hips[1]:
+        return False
+    shoulder_width = float(np.hypot(*(lm[11, :2] - lm[12, :2])))
+    head_width = float(np.hypot(*(lm[7, :2] - lm[8, :2])))
+    # real shoulders are about twice as wide as the head seen from the front; a pictogram or a pole
+    # that the model reads as a person has them no wider than the head
+    return shoulder_width < 1.5 * torso_len and shoulder_width > 1.15 * head_width
+
+
+def _nms(boxes: list[NDArray], scores: list[float], iou: float) -> list[int]:
+    order = sorted(range(len(boxes)), key=lambda i: -scores[i])
+    keep: list[int] = []
+    for i in order:
+        if all(box_iou(boxes[i], boxes[j]) < iou and not _contains(boxes[j], boxes[i]) for j in keep):
+            keep.append(i)
+    return sorted(keep)
+
+
+def _contains(outer: NDArray, inner: NDArray, share: float = 0.85) -> bool:
+    """Most of ``inner`` lies inside ``outer`` and it is not much smaller (the same person seen twice)."""
+    iw = min(outer[2], inner[2]) - max(outer[0], inner[0])
+    ih = min(outer[3], inner[3]) - max(outer[1], inner[1])
+    if iw <= 0 or ih <= 0:
+        return False
+    area = (inner[2] - inner[0]) * (inner[3] - inner[1])
+    return iw * ih >= share * area and area >= 0.3 * (outer[2] - outer[0]) * (outer[3] - outer[1])
+
+
+def _merge_regions(found: list[tuple[NDArray[np.float64], float]]) -> list[tuple[NDArray[np.float64], float]]:
+    """Group regions that describe the same person (close centres, similar sizes), best score first.
+
+    Returns one entry per person: (regions of the group stacked as (k, 4), best score). The landmark
+    stage tries the regions in order, as MediaPipe's landmark model sometimes rejects one crop of a
+    person and accepts another.
+    """
+    order = sorted(found, key=lambda r: -r[1])
+    groups: list[tuple[list[NDArray[np.float64]], float]] = []
+    for roi, score in order:
+        for members, _ in groups:
+            other = members[0]
+            ratio = roi[2] / other[2]
+            if 0.6 < ratio < 1 / 0.6 and math.hypot(*(roi[:2] - other[:2])) < 0.2 * min(roi[2], other[2]):
+                members.append(roi)
+                break
+        else:
+            groups.append(([roi], score))
+    return [(np.vstack(members), score) for members, score in groups]
