@@ -314,3 +314,71 @@ def test_phone_user_ends_with_lower_phone_trait_and_trust_than_walkers(walk_rows
     for w in walkers:
         assert woman["smartphone_trait"] < w["smartphone_trait"], (woman, w)
         assert woman["trust"] < w["trust"], (woman, w)
+
+
+# -- the command line: videos, bad frames, optional backends ----------------------------------------
+
+
+@needs_shared
+@pytest.mark.slow
+def test_estimate_on_a_video_writes_an_annotated_mp4(tmp_path):
+    import cv2
+
+    from trustnav.cli import main
+
+    video = tmp_path / "clip.mp4"
+    frames = sorted((SEQUENCES / "phone_a").glob("*.png"))
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 5.0, (640, 480))
+    for f in frames:
+        writer.write(cv2.imread(str(f)))
+    writer.release()
+    assert main(["estimate", str(video), "--out", str(tmp_path / "out")]) == 0
+    cap = cv2.VideoCapture(str(tmp_path / "out" / "annotated.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(frames)
+    cap.release()
+    rows = json.loads((tmp_path / "out" / "tracks.json").read_text())
+    assert rows and all(r["frame"].startswith("clip.mp4#") for r in rows)
+    for r in rows:
+        assert 0.0 <= r["eye_contact"] <= 1.0 and 0.0 <= r["phone"] <= 1.0 and 0.0 <= r["trust"] <= 1.0
+        x1, y1, x2, y2 = r["bbox"]
+        assert 0 <= x1 < x2 <= 640 and 0 <= y1 < y2 <= 480
+
+
+@needs_shared
+def test_one_unreadable_frame_is_skipped_not_fatal(tmp_path, capsys):
+    import shutil
+
+    from trustnav.cli import main
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    good = sorted((SEQUENCES / "phone_a").glob("*.png"))[3:5]
+    shutil.copy(good[0], seq / "f1.png")
+    (seq / "f2.png").write_bytes(b"\x89PNG broken")
+    shutil.copy(good[1], seq / "f3.png")
+    assert main(["estimate", str(seq), "--out", str(tmp_path / "out")]) == 0
+    assert "skipped frame f2.png" in capsys.readouterr().err
+    rows = json.loads((tmp_path / "out" / "tracks.json").read_text())
+    assert {r["frame"] for r in rows} == {"f1.png", "f3.png"}
+    assert sorted(p.name for p in (tmp_path / "out" / "frames").iterdir()) == ["f1.png", "f3.png"]
+
+
+def test_missing_optional_backend_says_what_to_install(monkeypatch):
+    import builtins
+
+    from trustnav.perception.optional_backends import make_backend
+
+    real_import = builtins.__import__
+
+    def fake_import(name, *args, **kwargs):
+        if name in ("ultralytics", "openpifpaf"):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", fake_import)
+    with pytest.raises(ImportError, match="pip install ultralytics"):
+        make_backend("yolo")
+    with pytest.raises(ImportError, match="pip install openpifpaf"):
+        make_backend("openpifpaf")
+    with pytest.raises(ValueError, match="unknown pose backend"):
+        make_backend("nope")

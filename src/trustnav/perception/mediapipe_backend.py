@@ -18,11 +18,14 @@ as MediaPipe does, and the tiled detector may run only every ``detect_every`` fr
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import queue
+import sys
 import time
 import warnings
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -101,6 +104,10 @@ class MediaPipeConfig:
     tile_fractions: tile sides as fractions of the frame's shorter side (1.0 = square tiles as tall as
     the frame); the whole frame is always searched too. tile_overlap: overlap between neighbouring tiles.
     min_tile_px: smallest tile side searched (the detector sees 224 x 224).
+    head_band: tiles smaller than half the frame are searched only where their centre lies in this band of
+    the frame's height (fractions from the top; None: everywhere). The detector finds a person by
+    the face, and the faces of small, far pedestrians lie near the horizon of a camera at eye height;
+    near people are big and found by the larger tiles, which cover the whole frame.
     scan_frames: in video mode, the tiles are shared out over this many consecutive frames (the whole
     frame is searched every frame; people already found are followed from their landmarks meanwhile).
     workers: MediaPipe graphs run in this many threads (each graph runs on one core).
@@ -115,10 +122,13 @@ class MediaPipeConfig:
     max_torso_tilt_deg: float = 35.0
     max_hip_offset: float = 0.25
     min_aspect: float = 1.3
+    head_band: tuple[float, float] | None = (0.2, 0.6)
     scan_frames: int = 1
     workers: int = 2
 
     def __post_init__(self) -> None:
+        if self.head_band is not None and not 0.0 <= self.head_band[0] < self.head_band[1] <= 1.0:
+            raise ValueError(f"head_band must be (top, bottom) with 0 <= top < bottom <= 1, got {self.head_band!r}")
         if not self.tile_fractions or any(not 0.0 < f <= 1.0 for f in self.tile_fractions):
             raise ValueError(f"tile_fractions must be non-empty, each in (0, 1], got {self.tile_fractions!r}")
         if not 0.0 <= self.tile_overlap < 0.9:
@@ -152,6 +162,9 @@ def tiles(height: int, width: int, config: MediaPipeConfig) -> list[tuple[int, i
         stride = side * (1.0 - config.tile_overlap)
         xs = _starts(width, side, stride)
         ys = _starts(height, side, stride)
+        if config.head_band is not None and frac < 0.5:
+            top, bottom = config.head_band[0] * height, config.head_band[1] * height
+            ys = [y for y in ys if top <= y + side / 2 <= bottom]
         out.extend((x, y, x + side, y + side) for y in ys for x in xs)
     return list(dict.fromkeys(out))
 
@@ -186,6 +199,25 @@ def box_iou(a: NDArray, b: NDArray) -> float:
     return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
+@contextlib.contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """Silence the C++ start-up chatter of MediaPipe/TFLite (written straight to file descriptor 2)."""
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # no real stderr (e.g. captured): nothing to silence
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
 class _Graphs:
     """One detector graph and one landmark graph; each runs single-threaded, so one per worker."""
 
@@ -199,9 +231,13 @@ class _Graphs:
             config = text_format.Parse(text, calculator_pb2.CalculatorGraphConfig())
             return solution_base.SolutionBase(graph_config=config)
 
-        self.detector = graph(_DETECTOR_GRAPH)
-        self.landmarker = graph(_LANDMARK_GRAPH)
         self.rect = rect_pb2.NormalizedRect
+        with _quiet_stderr():
+            self.detector = graph(_DETECTOR_GRAPH)
+            self.landmarker = graph(_LANDMARK_GRAPH)
+            blank = np.zeros((64, 64, 3), dtype=np.uint8)
+            self.detector.process({"image": blank})  # start the graphs now, quietly
+            self.landmarker.process({"image": blank, "roi": self.rect(x_center=0.5, y_center=0.5, width=1, height=1)})
 
     def detect(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> list[tuple[NDArray, float]]:
         """Person regions found in one window of the frame, in frame pixels."""
@@ -247,9 +283,10 @@ class _Graphs:
         return lm, np.r_[nxt, np.nan, np.nan, np.nan], roi
 
     def landmarks_or_redetect(self, frame: NDArray[np.uint8], rois: NDArray[np.float64]) -> tuple | None:
-        """Landmarks from a person's regions; if none, search a window around the first once more."""
+        """Landmarks from a person's regions; if none and the person was followed from the previous
+        frame (no detection among its regions), search a window around it once more."""
         res = self.landmarks_of_group(frame, rois)
-        if res is not None:
+        if res is not None or np.isfinite(rois[:, 4]).any():
             return res
         h, w = frame.shape[:2]
         roi = rois[0]
@@ -442,7 +479,7 @@ def _merge_regions(found: list[tuple[NDArray[np.float64], float]]) -> list[tuple
         for members, _ in groups:
             other = members[0]
             ratio = roi[2] / other[2]
-            if 0.6 < ratio < 1 / 0.6 and math.hypot(*(roi[:2] - other[:2])) < 0.2 * min(roi[2], other[2]):
+            if 0.6 < ratio < 1 / 0.6 and math.hypot(*(roi[:2] - other[:2])) < 0.1 * min(roi[2], other[2]):
                 members.append(roi)
                 break
         else:
