@@ -56,7 +56,10 @@ class PersonTracker:
             import supervision as sv
             from trackers import ByteTrackTracker, OCSORTTracker
         except ImportError as exc:  # pragma: no cover - exercised only without the dependency
-            raise ImportError("tracking needs the `trackers` package: pip install trackers==2.6.1") from exc
+            raise ImportError(
+                "tracking needs the `trackers` package: pip install --no-deps trackers==2.6.1 "
+                "(its other requirements come with trustnav)"
+            ) from exc
         self._sv = sv
         c = self.config
         common = {
