@@ -47,9 +47,10 @@ def _summary(m: dict) -> None:
 def _estimate(args: argparse.Namespace) -> int:
     import csv
 
+    import cv2
     from tqdm import tqdm
 
-    from trustnav.perception.frames import VIDEO_SUFFIXES, iter_frames, source_fps
+    from trustnav.perception.frames import VIDEO_SUFFIXES, frame_count, iter_frames, source_fps
     from trustnav.perception.looking import LookingModel
     from trustnav.perception.optional_backends import make_backend
     from trustnav.perception.phone import phone_label
@@ -63,7 +64,7 @@ def _estimate(args: argparse.Namespace) -> int:
     video_in = any(p.suffix.lower() in VIDEO_SUFFIXES for p in inputs)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    frames = list(iter_frames(inputs)) if not video_in else iter_frames(inputs)
+    total = frame_count(inputs)
     kwargs = {"scan_frames": args.scan_frames} if args.backend == "mediapipe" else {}
     backend = make_backend(args.backend, video=True, **kwargs)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), LookingModel.from_file(args.looking_weights))
@@ -76,8 +77,9 @@ def _estimate(args: argparse.Namespace) -> int:
         errors += 1
         tqdm.write(f"trustnav: skipped frame {res.name}: {res.error}", file=sys.stderr)
 
-    total = len(frames) if isinstance(frames, list) else None
-    for res in tqdm(estimate(frames, pipeline, TrustEstimator(), fps, on_error=report), total=total, unit="frame"):
+    size: tuple[int, int] | None = None
+    results = estimate(iter_frames(inputs), pipeline, TrustEstimator(), fps, on_error=report)
+    for res in tqdm(results, total=total, unit="frame"):
         rows.extend(res.records)
         if res.error is not None or args.no_images:
             continue
@@ -87,21 +89,20 @@ def _estimate(args: argparse.Namespace) -> int:
             [tp.person.keypoints for tp in res.people],
             [phone_label(tp.phone) for tp in res.people],
         )
-        if video_in:
-            import cv2
-
+        if video_in or args.mp4:
             if writer is None:
-                writer = cv2.VideoWriter(
-                    str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps, (img.shape[1], img.shape[0])
-                )
+                size = (img.shape[1], img.shape[0])
+                writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+            if (img.shape[1], img.shape[0]) != size:
+                img = cv2.resize(img, size)
             writer.write(img)
         else:
-            import cv2
-
             (out / "frames").mkdir(exist_ok=True)
             cv2.imwrite(str(out / "frames" / f"{Path(res.name).stem}.png"), img)
     if writer is not None:
         writer.release()
+    if hasattr(backend, "close"):
+        backend.close()
     fields = ["frame", "track_id", "bbox", "eye_contact", "phone", "fluctuation",
               "smartphone_trait", "eye_trait", "pose_trait", "score", "trust"]  # fmt: skip
     with open(out / "tracks.csv", "w", newline="") as fh:
@@ -145,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
     e.add_argument("--no-images", action="store_true", help="write only tracks.csv/json")
+    e.add_argument("--mp4", action="store_true", help="write annotated.mp4 also for image inputs (not PNG frames)")
     e.set_defaults(func=_estimate)
     return p
 

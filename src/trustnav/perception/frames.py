@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "FrameItem", "iter_frames", "natural_key", "source_fps"]
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "FrameItem", "frame_count", "iter_frames", "natural_key", "source_fps"]
 
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"})
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm"})
@@ -58,6 +58,24 @@ def source_fps(inputs: list[Path], default: float) -> float:
             if fps and fps > 0:
                 return float(fps)
     return default
+
+
+def frame_count(inputs: list[str | Path]) -> int | None:
+    """Number of frames the inputs hold (None if a video does not say), without decoding images."""
+    import cv2
+
+    n = 0
+    for f in _expand([Path(p) for p in inputs]):
+        if f.suffix.lower() in VIDEO_SUFFIXES:
+            cap = cv2.VideoCapture(str(f))
+            k = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 1
+            cap.release()
+            if k <= 0:
+                return None
+            n += k
+        else:
+            n += 1
+    return n
 
 
 def iter_frames(inputs: list[str | Path]) -> Iterator[FrameItem]:
