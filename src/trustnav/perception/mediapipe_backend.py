@@ -162,7 +162,7 @@ def tiles(height: int, width: int, config: MediaPipeConfig) -> list[tuple[int, i
         stride = side * (1.0 - config.tile_overlap)
         xs = _starts(width, side, stride)
         ys = _starts(height, side, stride)
-        if config.head_band is not None and frac < 0.5:
+        if config.head_band is not None and frac < 0.75:
             top, bottom = config.head_band[0] * height, config.head_band[1] * height
             ys = [y for y in ys if top <= y + side / 2 <= bottom]
         out.extend((x, y, x + side, y + side) for y in ys for x in xs)
