@@ -1,9 +1,9 @@
 """Perception on real frames: detection, occlusion-aware eye contact, tracking, phone use, trust.
 
-Ground truth written here by hand from the shared images (pixel boxes [x1, y1, x2, y2] of the
-full-resolution files). "Clearly visible" means a pedestrian whose head and most of the body are in
-view and not hidden behind another person; "other" people (partly hidden, far away, seated) may
-be found or not, but a box must lie on some person.
+Ground truth made by hand from the shared images, in ``tests/data/perception_truth.json`` (also
+read by ``benchmarks/perception_eval.py``): "clearly visible" pedestrians have the head and most of
+the body in view, not hidden behind another person; "other" people (partly hidden, far away,
+seated) may be found or not, but a box must lie on some person.
 """
 
 from __future__ import annotations
@@ -25,34 +25,9 @@ SEQUENCES = SHARED / "data" / "sequences"
 WEIGHTS = SHARED / "models" / "looking" / "LookingModel_LOOK+PIE.p"
 needs_shared = pytest.mark.skipif(not STREET.is_dir() or not WEIGHTS.is_file(), reason="../shared not present")
 
-CLEAR = {
-    "crossing.jpg": [
-        (150, 195, 335, 690),  # man with glasses, left
-        (305, 280, 395, 610),  # long-haired man behind him, profile
-        (495, 270, 605, 680),  # woman in GAP hoodie
-        (645, 245, 800, 625),  # man in white polo
-        (770, 265, 885, 625),  # woman in black leather jacket, profile
-        (915, 300, 1015, 585),  # woman with scarf
-        (1020, 290, 1165, 670),  # older woman in grey hoodie
-        (1195, 255, 1280, 625),  # man in blue sweater, right edge
-        (600, 250, 690, 565),  # man in dark jacket behind the polo shirt
-    ],
-    "street_1.png": [(669, 304, 800, 550), (785, 320, 862, 550), (896, 312, 984, 560)],
-    "street_2.png": [
-        (1152, 256, 1296, 704),  # woman in grey
-        (1288, 248, 1448, 696),  # man in striped shirt
-        (1424, 240, 1600, 736),  # woman in white, looking back
-        (1528, 288, 1752, 840),  # boy with a ball
-        (1616, 240, 1880, 808),  # older woman with blue bag, behind the boy
-    ],
-    "street_4.png": [(1760, 208, 1880, 680)],
-}
-OTHER = {
-    "crossing.jpg": [(570, 270, 620, 560), (840, 270, 910, 440), (885, 280, 950, 460), (990, 280, 1060, 420)],
-    "street_1.png": [(864, 344, 912, 432)],  # seated, behind the stroller
-    "street_2.png": [],
-    "street_4.png": [(864, 380, 888, 445), (900, 368, 931, 448), (1488, 344, 1504, 368)],  # far away
-}
+TRUTH = json.loads((Path(__file__).parent / "data" / "perception_truth.json").read_text())
+CLEAR = {name: [tuple(b) for b in boxes] for name, boxes in TRUTH["clear"].items()}
+OTHER = {name: [tuple(b) for b in boxes] for name, boxes in TRUTH["other"].items()}
 
 
 def _iou(a, b) -> float:
@@ -164,11 +139,29 @@ def test_crossing_eye_contact_ranks_facing_people_above_profiles(street_people):
         assert _iou(match.bbox, box) > 0.4, f"nobody found at {box}"
         return float(model.predict(normalise_keypoints(match.keypoints, match.confidences, 1280)[None])[0])
 
-    facing = [eye(CLEAR["crossing.jpg"][i]) for i in (3, 5, 7)]
-    profile = [eye(CLEAR["crossing.jpg"][i]) for i in (1, 4)]
+    facing = [eye(CLEAR["crossing.jpg"][i]) for i in TRUTH["crossing_facing"]]
+    profile = [eye(CLEAR["crossing.jpg"][i]) for i in TRUTH["crossing_profile"]]
     assert min(facing) > max(profile), (facing, profile)
     # BlazePose's own visibility (~1 everywhere) would not separate them: the occlusion model does
     assert min(facing) > 0.55 and min(profile) < 0.1
+
+
+@needs_shared
+@pytest.mark.slow
+def test_people_walking_across_the_view_score_low_eye_contact(street_people):
+    """street_2: the woman in grey, the man in the striped shirt and the boy cross the road in
+    profile. With BlazePose's visibility as confidences LOOKING would call them attentive (> 0.9)."""
+    from trustnav.perception.looking import LookingModel, normalise_keypoints
+
+    model = LookingModel.from_file(WEIGHTS)
+    people = street_people["street_2.png"]
+    for gt in (CLEAR["street_2.png"][i] for i in TRUTH["street_2_crossing"]):
+        p = max(people, key=lambda q: _iou(q.bbox, gt))
+        assert _iou(p.bbox, gt) > 0.4, f"nobody found at {gt}"
+        ours = model.predict(normalise_keypoints(p.keypoints, p.confidences, 2048)[None])[0]
+        vis = np.clip(p.extra["blazepose"][[0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28], 3], 0, 1)
+        naive = model.predict(normalise_keypoints(p.keypoints, vis, 2048)[None])[0]
+        assert ours < 0.1 < 0.9 < naive, (gt, ours, naive)
 
 
 # -- detection on street images -----------------------------------------------------------------
@@ -260,15 +253,7 @@ def _track_at(rows: list[dict], frame_index: int, point) -> dict | None:
     return min(hits, key=lambda r: r["bbox"][2] - r["bbox"][0]) if hits else None
 
 
-# Pedestrians of walk_a followed by hand: key frames (frame index, x, y) of a point on the torso,
-# linearly interpolated in between (indices in the sequence's 45 frames, in file-name order).
-WALK_A_PEDESTRIANS = {
-    "man on a phone call, walking in from the left": [(5, 353, 196), (14, 381, 196), (20, 406, 199),
-                                                      (26, 443, 203), (32, 489, 204), (38, 538, 207), (44, 590, 210)],
-    "old man with white hair, standing": [(21, 300, 200), (44, 302, 205)],
-    "man in a hooded jacket, walking away (hidden by the caller in frames ~23-29)": [
-        (0, 450, 193), (21, 462, 197), (30, 425, 199), (44, 368, 210)],
-}  # fmt: skip
+WALK_A_PEDESTRIANS = TRUTH["walk_a"]  # hand-followed: key frames [frame index, x, y] on the torso
 
 
 def _point(keys, k):
@@ -301,12 +286,13 @@ def test_phone_user_ends_with_lower_phone_trait_and_trust_than_walkers(walk_rows
     phone_rows = _run_estimate("phone_a", tmp_path / "phone_a")
     frames = sorted({r["frame"] for r in phone_rows})
     # the woman in the light padded jacket: left of the woman in black, x ~ 280 in the last frame
-    last = [r for r in phone_rows if r["frame"] == frames[-1] and _inside((290, 240), r["bbox"])]
+    point = TRUTH["phone_a_user_last_frame_point"]
+    last = [r for r in phone_rows if r["frame"] == frames[-1] and _inside(point, r["bbox"])]
     assert last, "phone user not found in the last frame"
     woman = last[0]
     assert len([r for r in phone_rows if r["track_id"] == woman["track_id"]]) >= 3  # one track
     walkers = []
-    for name in list(WALK_A_PEDESTRIANS)[1:]:  # the standing old man and the man walking away: no phone
+    for name in TRUTH["walk_a_no_phone"]:  # the standing old man and the man walking away
         ids = _ids_along(walk_rows, WALK_A_PEDESTRIANS[name])
         assert ids, f"{name} not found"
         track = max(set(ids), key=ids.count)
