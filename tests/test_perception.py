@@ -13,9 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trustnav.perception.confidence import HeadConfidenceParams, head_yaw, occlusion_confidences
-from trustnav.perception.frames import iter_frames, natural_key
+from trustnav.perception.frames import FrameItem, iter_frames, natural_key
 from trustnav.perception.phone import PoseGeometryPhoneClassifier, phone_label
 from trustnav.perception.types import Person, check_frame
 
@@ -389,10 +391,6 @@ def test_configs_refuse_bad_values_by_name():
         TrackerConfig(lost_seconds=-1.0)
 
 
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-
 @settings(max_examples=60, deadline=None)
 @given(st.integers(16, 3000), st.integers(16, 3000), st.floats(0.0, 0.8))
 def test_tiles_stay_in_the_frame_and_cover_it_at_every_scale(h, w, overlap):
@@ -414,3 +412,63 @@ def test_tiles_stay_in_the_frame_and_cover_it_at_every_scale(h, w, overlap):
         assert covered.all()
     banded = tiles(h, w, MediaPipeConfig(tile_overlap=overlap))
     assert set(banded) <= set(wins)  # the head band only removes small tiles
+
+
+# -- pipeline without a camera: observations reach the trust estimator only when seen --------------
+
+
+class _ScriptedBackend:
+    """Returns the people scripted for each call (no model)."""
+
+    def __init__(self, script):
+        self.script = list(script)
+
+    def __call__(self, frame):
+        return self.script.pop(0)
+
+
+def _walker(x: float) -> Person:
+    kp = np.column_stack([np.full(17, x + 10.0), np.linspace(10, 90, 17)])
+    return Person(bbox=np.array([x, 0.0, x + 20, 100]), keypoints=kp, confidences=np.full(17, 0.9), score=0.9)
+
+
+@needs_shared
+def test_pipeline_updates_trust_only_for_people_seen():
+    from trustnav.perception.looking import LookingModel
+    from trustnav.perception.pipeline import PerceptionPipeline, estimate
+    from trustnav.perception.tracking import PersonTracker
+    from trustnav.trust.estimator import TrustEstimator
+
+    script = [[_walker(10)], [_walker(12)], [], [_walker(16)]]
+    pipe = PerceptionPipeline(_ScriptedBackend(script), PersonTracker(fps=10), LookingModel.from_file(WEIGHTS))
+    frames = [FrameItem(f"f{i}", i, np.zeros((120, 160, 3), dtype=np.uint8)) for i in range(4)]
+    est = TrustEstimator()
+    results = list(estimate(frames, pipe, est, fps=10.0))
+    assert [len(r.records) for r in results] == [1, 1, 0, 1]
+    ids = {r.records[0]["track_id"] for r in results if r.records}
+    assert len(ids) == 1  # one walker, one ID across the gap
+    (tid,) = ids
+    assert est.tracks[tid].observations == 3 and est.tracks[tid].last_seen == pytest.approx(0.3)
+    assert results[1].records[0]["fluctuation"] is not None  # second sighting compares poses
+    assert all(0.0 <= r.records[0]["trust"] <= 1.0 for r in results if r.records)
+
+
+def test_trust_colours_follow_the_bands():
+    from trustnav.viz.annotate import GREEN, ORANGE, RED, annotate, trust_colour
+
+    assert [trust_colour(t) for t in (0.95, 0.71, 0.7, 0.41, 0.4, 0.0)] == [GREEN, GREEN, ORANGE, ORANGE, RED, RED]
+    frame = np.zeros((100, 100, 3), dtype=np.uint8)
+    rec = {"bbox": [10, 10, 50, 90], "trust": 0.9, "track_id": 3, "eye_contact": 0.5}
+    img = annotate(frame, [rec], [_walker(10).keypoints], ["N"])
+    assert img.shape == (100, 100, 3) and tuple(img[50, 10]) == GREEN  # box edge drawn in trust colour
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-179.0, 179.0))
+def test_mirrored_head_swaps_left_and_right_confidences(yaw):
+    p = HeadConfidenceParams(kappa=1.0)
+    c = occlusion_confidences(_head(yaw), p)
+    m = occlusion_confidences(_head(-yaw), p)
+    assert np.all((c >= 0) & (c <= 1))
+    assert c[0] == pytest.approx(m[0])  # the nose sees the same
+    assert c[1] == pytest.approx(m[2]) and c[3] == pytest.approx(m[4])  # left <-> right
