@@ -366,21 +366,44 @@ class MediaPipePoseBackend:
         return [r for rs in found for r in rs]
 
     def __call__(self, frame: NDArray[np.uint8]) -> list[Person]:
-        """People in ``frame`` (H x W x 3 uint8 RGB)."""
+        """People in ``frame`` (H x W x 3 uint8 RGB).
+
+        In video mode the people followed from the previous frame get their landmarks while the
+        detector searches the tiles (one pool of workers for both); detections of people already
+        found are then dropped, and the new ones get landmarks. ``last_timing`` holds the seconds
+        each stage kept the workers busy ("detection", "landmarks"), shared out over the workers.
+        """
         frame = check_frame(frame)
         h, w = frame.shape[:2]
-        t0 = time.perf_counter()
         windows = tiles(h, w, self.config)
         if self.video and self.config.scan_frames > 1 and self._frame_index > 0:
             k = self._frame_index % self.config.scan_frames
             windows = [windows[0]] + windows[1:][k :: self.config.scan_frames]
         followed = self._followed if self.video else []
-        regions = _merge_regions(list(followed) + self._detect_all(frame, windows))
-        t1 = time.perf_counter()
-        results = self._map(lambda g, region: g.landmarks_or_redetect(frame, region[0]), regions)
+        busy = {"detection": 0.0, "landmarks": 0.0}
+
+        def task(g: _Graphs, job: tuple[str, Any]) -> tuple[Any, float]:
+            t = time.perf_counter()
+            out = g.detect(frame, job[1]) if job[0] == "detection" else g.landmarks_or_redetect(frame, job[1])
+            return out, time.perf_counter() - t
+
+        # stage 1: tiles through the detector, and the followed people through the landmark model
+        jobs = [("detection", win) for win in windows] + [("landmarks", roi[None, :]) for roi, _ in followed]
+        done = self._map(task, jobs)
+        for (kind, _), (_, dt) in zip(jobs, done, strict=True):
+            busy[kind] += dt
+        found = [region for out, _ in done[: len(windows)] for region in out]
+        candidates = [(out, score) for (out, _), (_, score) in zip(done[len(windows) :], followed, strict=True)]
+        # stage 2: landmarks for the people the detector found that are not followed already
+        known = [res[1] for res, _ in candidates if res is not None]
+        groups = [g for g in _merge_regions(found) if not any(_same_region(g[0][0], k) for k in known)]
+        for (out, dt), (_, score) in zip(self._map(lambda g, grp: task(g, ("landmarks", grp[0])), groups), groups,
+                                         strict=True):  # fmt: skip
+            busy["landmarks"] += dt
+            candidates.append((out, score))
         people: list[Person] = []
         nxt: list[tuple[NDArray[np.float64], float]] = []
-        for (_, score), res in zip(regions, results, strict=True):
+        for res, score in candidates:
             if res is None:
                 continue
             person = self._person(res[0], score, w, h, res[2])
@@ -390,7 +413,7 @@ class MediaPipePoseBackend:
         keep = _nms([p.bbox for p in people], [p.score for p in people], self.config.duplicate_iou)
         self._followed = [nxt[i] for i in keep]
         self._frame_index += 1
-        self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
+        self.last_timing = {k: v / self.config.workers for k, v in busy.items()}
         return [people[i] for i in keep]
 
     def _person(self, lm: NDArray[np.float64], score: float, w: int, h: int, roi: NDArray) -> Person | None:
@@ -466,6 +489,12 @@ def _contains(outer: NDArray, inner: NDArray, share: float = 0.85) -> bool:
     return iw * ih >= share * area and area >= 0.3 * (outer[2] - outer[0]) * (outer[3] - outer[1])
 
 
+def _same_region(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+    """Two person regions [cx, cy, side, ...] describe the same person: close centres, similar sizes."""
+    ratio = a[2] / b[2]
+    return 0.6 < ratio < 1 / 0.6 and math.hypot(*(a[:2] - b[:2])) < 0.1 * min(a[2], b[2])
+
+
 def _merge_regions(found: list[tuple[NDArray[np.float64], float]]) -> list[tuple[NDArray[np.float64], float]]:
     """Group regions that describe the same person (close centres, similar sizes), best score first.
 
@@ -477,9 +506,7 @@ def _merge_regions(found: list[tuple[NDArray[np.float64], float]]) -> list[tuple
     groups: list[tuple[list[NDArray[np.float64]], float]] = []
     for roi, score in order:
         for members, _ in groups:
-            other = members[0]
-            ratio = roi[2] / other[2]
-            if 0.6 < ratio < 1 / 0.6 and math.hypot(*(roi[:2] - other[:2])) < 0.1 * min(roi[2], other[2]):
+            if _same_region(roi, members[0]):
                 members.append(roi)
                 break
         else:
