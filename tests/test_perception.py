@@ -9,6 +9,7 @@ seated) may be found or not, but a box must lie on some person.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -472,3 +473,25 @@ def test_mirrored_head_swaps_left_and_right_confidences(yaw):
     assert np.all((c >= 0) & (c <= 1))
     assert c[0] == pytest.approx(m[0])  # the nose sees the same
     assert c[1] == pytest.approx(m[2]) and c[3] == pytest.approx(m[4])  # left <-> right
+
+
+@needs_shared
+@pytest.mark.skipif(not os.environ.get("TRUSTNAV_YOLO_WEIGHTS"), reason="set TRUSTNAV_YOLO_WEIGHTS to a YOLO-pose .pt")
+def test_yolo_pose_backend_finds_the_crossing_pedestrians():
+    pytest.importorskip("ultralytics")
+    from trustnav.perception.optional_backends import make_backend
+
+    people = make_backend("yolo", weights=os.environ["TRUSTNAV_YOLO_WEIGHTS"])(_rgb(STREET / "crossing.jpg"))
+    found = sum(any(_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
+    assert found >= 0.8 * len(CLEAR["crossing.jpg"])
+
+
+@needs_shared
+@pytest.mark.skipif(not os.environ.get("TRUSTNAV_OPENPIFPAF"), reason="set TRUSTNAV_OPENPIFPAF=1 with openpifpaf")
+def test_openpifpaf_backend_finds_the_crossing_pedestrians():
+    pytest.importorskip("openpifpaf")
+    from trustnav.perception.optional_backends import make_backend
+
+    people = make_backend("openpifpaf")(_rgb(STREET / "crossing.jpg"))
+    found = sum(any(_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
+    assert found >= 0.8 * len(CLEAR["crossing.jpg"])
