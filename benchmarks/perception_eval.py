@@ -19,21 +19,15 @@ from pathlib import Path
 import numpy as np
 
 from trustnav.cli import main as cli
+from trustnav.perception.confidence import BLAZEPOSE_TO_COCO
 from trustnav.perception.frames import iter_frames
 from trustnav.perception.looking import LookingModel, normalise_keypoints
-from trustnav.perception.mediapipe_backend import BLAZEPOSE_TO_COCO, MediaPipePoseBackend
+from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
+from trustnav.perception.types import box_iou
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 TRUTH = json.loads((ROOT / "tests" / "data" / "perception_truth.json").read_text())
-
-
-def iou(a, b) -> float:
-    iw = min(a[2], b[2]) - max(a[0], b[0])
-    ih = min(a[3], b[3]) - max(a[1], b[1])
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    return iw * ih / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - iw * ih)
 
 
 def inside(p, box) -> bool:
@@ -53,7 +47,7 @@ def main() -> None:
             frame = next(iter_frames([street / name])).frame
             people[name] = (frame.shape[1], backend(frame))
             boxes = [p.bbox for p in people[name][1]]
-            hit = [any(iou(b, gt) > 0.4 for b in boxes) for gt in clear]
+            hit = [any(box_iou(b, gt) > 0.4 for b in boxes) for gt in clear]
             bad = [b for b in boxes if not any(inside(((b[0] + b[2]) / 2, (b[1] + b[3]) / 2), gt)
                                                for gt in clear + TRUTH["other"][name])]  # fmt: skip
             missed = [TRUTH["clear_names"][name][i] for i, h in enumerate(hit) if not h]
@@ -63,7 +57,7 @@ def main() -> None:
 
     def eye(name: str, index: int) -> tuple[float, float]:
         width, ps = people[name]
-        p = max(ps, key=lambda q: iou(q.bbox, TRUTH["clear"][name][index]))
+        p = max(ps, key=lambda q: box_iou(q.bbox, TRUTH["clear"][name][index]))
         vis = np.clip(p.extra["blazepose"][list(BLAZEPOSE_TO_COCO), 3], 0, 1)
         ours = model.predict(normalise_keypoints(p.keypoints, p.confidences, width)[None])[0]
         naive = model.predict(normalise_keypoints(p.keypoints, vis, width)[None])[0]

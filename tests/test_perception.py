@@ -17,10 +17,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trustnav.perception.confidence import HeadConfidenceParams, head_yaw, occlusion_confidences
+from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, HeadConfidenceParams, head_yaw, occlusion_confidences
 from trustnav.perception.frames import FrameItem, iter_frames, natural_key
 from trustnav.perception.phone import PoseGeometryPhoneClassifier, phone_label
-from trustnav.perception.types import Person, check_frame
+from trustnav.perception.types import Person, box_iou, check_frame
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 STREET = SHARED / "data" / "street_images"
@@ -31,15 +31,6 @@ needs_shared = pytest.mark.skipif(not STREET.is_dir() or not WEIGHTS.is_file(), 
 TRUTH = json.loads((Path(__file__).parent / "data" / "perception_truth.json").read_text())
 CLEAR = {name: [tuple(b) for b in boxes] for name, boxes in TRUTH["clear"].items()}
 OTHER = {name: [tuple(b) for b in boxes] for name, boxes in TRUTH["other"].items()}
-
-
-def _iou(a, b) -> float:
-    iw = min(a[2], b[2]) - max(a[0], b[0])
-    ih = min(a[3], b[3]) - max(a[1], b[1])
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    inter = iw * ih
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
 def _inside(point, box) -> bool:
@@ -138,8 +129,8 @@ def test_crossing_eye_contact_ranks_facing_people_above_profiles(street_people):
     people = street_people["crossing.jpg"]
 
     def eye(box) -> float:
-        match = max(people, key=lambda p: _iou(p.bbox, box))
-        assert _iou(match.bbox, box) > 0.4, f"nobody found at {box}"
+        match = max(people, key=lambda p: box_iou(p.bbox, box))
+        assert box_iou(match.bbox, box) > 0.4, f"nobody found at {box}"
         return float(model.predict(normalise_keypoints(match.keypoints, match.confidences, 1280)[None])[0])
 
     facing = [eye(CLEAR["crossing.jpg"][i]) for i in TRUTH["crossing_facing"]]
@@ -159,10 +150,10 @@ def test_people_walking_across_the_view_score_low_eye_contact(street_people):
     model = LookingModel.from_file(WEIGHTS)
     people = street_people["street_2.png"]
     for gt in (CLEAR["street_2.png"][i] for i in TRUTH["street_2_crossing"]):
-        p = max(people, key=lambda q: _iou(q.bbox, gt))
-        assert _iou(p.bbox, gt) > 0.4, f"nobody found at {gt}"
+        p = max(people, key=lambda q: box_iou(q.bbox, gt))
+        assert box_iou(p.bbox, gt) > 0.4, f"nobody found at {gt}"
         ours = model.predict(normalise_keypoints(p.keypoints, p.confidences, 2048)[None])[0]
-        vis = np.clip(p.extra["blazepose"][[0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28], 3], 0, 1)
+        vis = np.clip(p.extra["blazepose"][list(BLAZEPOSE_TO_COCO), 3], 0, 1)
         naive = model.predict(normalise_keypoints(p.keypoints, vis, 2048)[None])[0]
         assert ours < 0.1 < 0.9 < naive, (gt, ours, naive)
 
@@ -178,7 +169,7 @@ def test_street_images_find_most_clear_pedestrians_and_no_false_boxes(street_peo
         boxes = [p.bbox for p in people]
         for gt in CLEAR[name]:
             total += 1
-            found += any(_iou(b, gt) > 0.4 for b in boxes)
+            found += any(box_iou(b, gt) > 0.4 for b in boxes)
         for b in boxes:
             centre = ((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
             assert any(_inside(centre, gt) for gt in CLEAR[name] + OTHER[name]), f"false box {b} in {name}"
@@ -482,7 +473,7 @@ def test_yolo_pose_backend_finds_the_crossing_pedestrians():
     from trustnav.perception.optional_backends import make_backend
 
     people = make_backend("yolo", weights=os.environ["TRUSTNAV_YOLO_WEIGHTS"])(_rgb(STREET / "crossing.jpg"))
-    found = sum(any(_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
+    found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
     assert found >= 0.8 * len(CLEAR["crossing.jpg"])
 
 
@@ -493,5 +484,5 @@ def test_openpifpaf_backend_finds_the_crossing_pedestrians():
     from trustnav.perception.optional_backends import make_backend
 
     people = make_backend("openpifpaf")(_rgb(STREET / "crossing.jpg"))
-    found = sum(any(_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
+    found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
     assert found >= 0.8 * len(CLEAR["crossing.jpg"])

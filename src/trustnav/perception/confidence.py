@@ -22,9 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["HeadConfidenceParams", "head_yaw", "occlusion_confidences"]
+__all__ = ["BLAZEPOSE_TO_COCO", "HeadConfidenceParams", "head_yaw", "occlusion_confidences"]
 
-_COCO_FROM_BLAZE = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+# index of each COCO keypoint among BlazePose's 33 landmarks
+BLAZEPOSE_TO_COCO: tuple[int, ...] = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,7 @@ def occlusion_confidences(
     lm = np.asarray(lm, dtype=float)
     if lm.ndim != 2 or lm.shape[0] != 33 or lm.shape[1] < 4:
         raise ValueError(f"landmarks must have shape (33, >=4) (x, y, z, visibility), got {lm.shape}")
-    vis = np.clip(lm[list(_COCO_FROM_BLAZE), 3], 0.0, 1.0)
+    vis = np.clip(lm[list(BLAZEPOSE_TO_COCO), 3], 0.0, 1.0)
     yaw = head_yaw(lm, params.kappa)
     eye = math.radians(params.eye_angle_deg)
     # COCO 0..4: nose, left eye, right eye, left ear, right ear; phi > 0 turns with the left side

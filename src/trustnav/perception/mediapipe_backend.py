@@ -33,13 +33,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.perception.confidence import occlusion_confidences
-from trustnav.perception.types import Person, check_frame
+from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
+from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = ["BLAZEPOSE_TO_COCO", "MEDIAPIPE_VERSION", "MediaPipeConfig", "MediaPipePoseBackend", "load_mediapipe"]
 
 MEDIAPIPE_VERSION = "0.10.14"
-BLAZEPOSE_TO_COCO: tuple[int, ...] = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
 
 INSTALL_HINT = (
     f"the default pose backend needs mediapipe=={MEDIAPIPE_VERSION}; install it with "
@@ -187,16 +186,6 @@ def roi_from_alignment(center: NDArray, scale_point: NDArray) -> NDArray[np.floa
     rotation = rotation - 2 * math.pi * math.floor((rotation + math.pi) / (2 * math.pi))
     side = 2.0 * math.hypot(dx, dy) * 1.25
     return np.array([center[0], center[1], side, rotation])
-
-
-def box_iou(a: NDArray, b: NDArray) -> float:
-    """Intersection over union of two [x1, y1, x2, y2] boxes."""
-    iw = min(a[2], b[2]) - max(a[0], b[0])
-    ih = min(a[3], b[3]) - max(a[1], b[1])
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    inter = iw * ih
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
 @contextlib.contextmanager
@@ -359,11 +348,8 @@ class MediaPipePoseBackend:
         region followed from landmarks) as groups of candidates per person, with detection scores."""
         if windows is None:
             windows = tiles(frame.shape[0], frame.shape[1], self.config)
-        return _merge_regions(self._detect_all(frame, windows))
-
-    def _detect_all(self, frame: NDArray[np.uint8], windows: list[tuple[int, int, int, int]]) -> list:
         found = self._map(lambda g, win: g.detect(frame, win), windows)
-        return [r for rs in found for r in rs]
+        return _merge_regions([r for rs in found for r in rs])
 
     def __call__(self, frame: NDArray[np.uint8]) -> list[Person]:
         """People in ``frame`` (H x W x 3 uint8 RGB).

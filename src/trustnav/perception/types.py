@@ -8,7 +8,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["COCO_KEYPOINTS", "N_KEYPOINTS", "Person", "PoseBackend", "check_frame"]
+__all__ = ["COCO_KEYPOINTS", "N_KEYPOINTS", "Person", "PoseBackend", "box_iou", "check_frame"]
 
 COCO_KEYPOINTS: tuple[str, ...] = (
     "nose",
@@ -80,3 +80,13 @@ def check_frame(frame: object, name: str = "frame") -> NDArray[np.uint8]:
     if frame.dtype != np.uint8:
         raise ValueError(f"{name} must be uint8 (0-255), got {frame.dtype}")
     return np.ascontiguousarray(frame)
+
+
+def box_iou(a: NDArray | tuple, b: NDArray | tuple) -> float:
+    """Intersection over union of two [x1, y1, x2, y2] boxes."""
+    iw = min(a[2], b[2]) - max(a[0], b[0])
+    ih = min(a[3], b[3]) - max(a[1], b[1])
+    if iw <= 0 or ih <= 0:
+        return 0.0
+    inter = iw * ih
+    return float(inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter))
