@@ -9,11 +9,12 @@ built from the calculators that ship in the wheel (no model download, no jax):
 2. ``PoseLandmarkByRoiCpu`` (``pose_landmark_full.tflite``) once per person region, giving 33
    landmarks, mapped to COCO's 17 with :data:`BLAZEPOSE_TO_COCO`.
 
-People are then checked for an upright body (pedestrians stand or walk: head above shoulders above
-hips, torso near vertical, taller than wide), which removes boxes on non-persons, and duplicates are
-merged once more on their landmark boxes. In video mode (:meth:`MediaPipePoseBackend.reset` between
-videos) a person found in one frame is followed in the next from the region of its own landmarks,
-as MediaPipe does, and the tiled detector may run only every ``detect_every`` frames.
+People are then checked (:func:`is_upright`, plus the landmarks must lie where the region put the
+hips and the detector saw the face, and the box must be taller than wide), which removes boxes on
+non-persons, and duplicates are merged once more on their landmark boxes. In video mode
+(:meth:`MediaPipePoseBackend.reset` between videos) a person found in one frame is followed in the
+next from the region of its own landmarks, as MediaPipe does, while the detector searches the tiles;
+``scan_frames`` shares the tiles out over consecutive frames.
 """
 
 from __future__ import annotations
@@ -103,10 +104,10 @@ class MediaPipeConfig:
     tile_fractions: tile sides as fractions of the frame's shorter side (1.0 = square tiles as tall as
     the frame); the whole frame is always searched too. tile_overlap: overlap between neighbouring tiles.
     min_tile_px: smallest tile side searched (the detector sees 224 x 224).
-    head_band: tiles smaller than half the frame are searched only where their centre lies in this band of
-    the frame's height (fractions from the top; None: everywhere). The detector finds a person by
-    the face, and the faces of small, far pedestrians lie near the horizon of a camera at eye height;
-    near people are big and found by the larger tiles, which cover the whole frame.
+    head_band: tiles of the smaller scales (fractions < 0.75) are searched only where their centre lies
+    in this band of the frame's height (fractions from the top; None: everywhere). The detector finds
+    a person by the face, and pedestrians' faces lie near the horizon of a camera at eye height; the
+    whole frame and the largest tiles, which cover everything, find the people who are not.
     scan_frames: in video mode, the tiles are shared out over this many consecutive frames (the whole
     frame is searched every frame; people already found are followed from their landmarks meanwhile).
     workers: MediaPipe graphs run in this many threads (each graph runs on one core).
