@@ -178,9 +178,10 @@ def test_street_images_find_most_clear_pedestrians_and_no_false_boxes(street_peo
     assert found / total >= 0.8, f"found {found} of {total} clearly visible pedestrians"
 
 
-@needs_shared
-def test_empty_frame_has_no_people(backend):
+def test_empty_and_degenerate_frames_have_no_people(backend):
     assert backend(np.zeros((240, 320, 3), dtype=np.uint8)) == []
+    for shape in ((1, 1, 3), (3, 500, 3), (2000, 16, 3)):
+        assert backend(np.zeros(shape, dtype=np.uint8)) == []
     assert backend(np.full((64, 64, 3), 200, dtype=np.uint8)) == []
 
 
