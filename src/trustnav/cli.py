@@ -50,7 +50,7 @@ def _estimate(args: argparse.Namespace) -> int:
     import cv2
     from tqdm import tqdm
 
-    from trustnav.perception.frames import VIDEO_SUFFIXES, frame_count, iter_frames, source_fps
+    from trustnav.perception.frames import VIDEO_SUFFIXES, expand_inputs, frame_count, iter_frames, source_fps
     from trustnav.perception.looking import LookingModel
     from trustnav.perception.optional_backends import make_backend
     from trustnav.perception.phone import phone_label
@@ -59,7 +59,7 @@ def _estimate(args: argparse.Namespace) -> int:
     from trustnav.trust.estimator import TrustEstimator
     from trustnav.viz.annotate import annotate
 
-    inputs = [Path(p) for p in args.inputs]
+    inputs = expand_inputs(args.inputs)  # once: folders listed, existence checked
     fps = source_fps(inputs, args.fps)
     video_in = any(p.suffix.lower() in VIDEO_SUFFIXES for p in inputs)
     out = Path(args.out)

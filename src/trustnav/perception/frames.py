@@ -10,7 +10,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "FrameItem", "frame_count", "iter_frames", "natural_key", "source_fps"]
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "VIDEO_SUFFIXES",
+    "FrameItem",
+    "expand_inputs",
+    "frame_count",
+    "iter_frames",
+    "natural_key",
+    "source_fps",
+]
 
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"})
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm"})
@@ -31,7 +40,9 @@ def natural_key(path: Path) -> list[object]:
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
 
 
-def _expand(inputs: list[Path]) -> list[Path]:
+def expand_inputs(inputs: list[str | Path]) -> list[Path]:
+    """The files the inputs name: files as given, folders as their images and videos in natural order."""
+    inputs = [Path(p) for p in inputs]
     files: list[Path] = []
     for p in inputs:
         if p.is_dir():
@@ -50,7 +61,7 @@ def source_fps(inputs: list[Path], default: float) -> float:
     """Frame rate of the first video among the inputs, else ``default``."""
     import cv2
 
-    for f in _expand([Path(p) for p in inputs]):
+    for f in expand_inputs(inputs):
         if f.suffix.lower() in VIDEO_SUFFIXES:
             cap = cv2.VideoCapture(str(f))
             fps = cap.get(cv2.CAP_PROP_FPS)
@@ -65,7 +76,7 @@ def frame_count(inputs: list[str | Path]) -> int | None:
     import cv2
 
     n = 0
-    for f in _expand([Path(p) for p in inputs]):
+    for f in expand_inputs(inputs):
         if f.suffix.lower() in VIDEO_SUFFIXES:
             cap = cv2.VideoCapture(str(f))
             k = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 1
@@ -83,7 +94,7 @@ def iter_frames(inputs: list[str | Path]) -> Iterator[FrameItem]:
     import cv2
 
     index = 0
-    for f in _expand([Path(p) for p in inputs]):
+    for f in expand_inputs(inputs):
         if f.suffix.lower() in VIDEO_SUFFIXES:
             cap = cv2.VideoCapture(str(f))
             if not cap.isOpened():
