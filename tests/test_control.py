@@ -107,16 +107,19 @@ def test_controller_accepts_changing_pedestrian_counts():
         x = SingleIntegrator().step(x, sol.control, cfg.dt)
 
 
-def test_pedestrian_inside_margin_is_relaxed_reported_and_not_silent():
-    """A pedestrian appearing inside R in front of a fast bicycle: the first CBF row cannot be met
-    by any input, so the solver relaxes it, says so, and the plan brakes."""
+def test_pedestrian_inside_margin_is_reported_and_not_silent():
+    """A pedestrian appearing inside R in front of a fast bicycle: the first CBF row is fixed by the
+    current state (no input changes the next position), so it is reported as decided, not hidden;
+    the plan brakes and steers."""
     cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5)
     ctl = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
     sol = ctl.step([10.0, 0.0, 0.0, 10.0], [[11.5, 0.5]], [[0.0, 0.0]], [0.0])
-    assert sol.slack_used and sol.status is SolveStatus.RELAXED
-    assert sol.cbf_violation > 0
-    assert not sol.fallback
+    # row k = 0: ||(11, 0) - (11.5, 0.5)||^2 - R^2 - (1 - gamma)(||(10, 0) - ped||^2 - R^2), gamma = 0.03
+    expected = (0.5 - 6.25) - 0.97 * (2.5 - 6.25)
+    assert sol.decided_violation == pytest.approx(-expected)
+    assert "fixed by the current state" in sol.message
     assert sol.control[1] < 0  # decelerating
+    assert not sol.fallback
 
 
 def test_invalid_inputs_and_configs_raise_clear_errors():

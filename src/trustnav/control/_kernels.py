@@ -118,7 +118,8 @@ def bicycle_qp(
     Residuals (weights w = [cte, heading, speed, steer, accel, steer rate, accel rate]):
     cross-track and heading error to the reference waypoints and speed error for k = 1..N,
     steer and acceleration for k = 0..N-1, and their rates with u(-1) = u_prev. Gauss-Newton
-    Hessian H = 2 J' W J. Extra rows after the CBF rows: speed bounds v(k+1) in [vmin, vmax].
+    Hessian H = 2 J' W J. Extra rows after the CBF rows: speed bounds v(k+1) in [vmin, vmax]
+    (widened to the speeds reachable from v(0)).
     """
     n_h = u.shape[0]
     n = 2 * n_h
@@ -201,8 +202,12 @@ def bicycle_qp(
         row = m_cbf + k
         for i in range(n):
             a_mat[row, i] = sens[k + 1, 3, i]
-        bl[n + row] = vmin - xs[k + 1, 3]
-        bu[n + row] = vmax - xs[k + 1, 3]
+        # bounds widened to what the input bounds can reach from v(0), so that a speed outside
+        # [vmin, vmax] (a car rolling back, an overspeed) is brought back without an infeasible QP
+        lo_k = min(vmin, x0[3] + (k + 1) * dt * uhi[1])
+        hi_k = max(vmax, x0[3] + (k + 1) * dt * ulo[1])
+        bl[n + row] = lo_k - xs[k + 1, 3]
+        bu[n + row] = hi_k - xs[k + 1, 3]
     return cost
 
 

@@ -33,8 +33,9 @@ class DynamicsModel:
     def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         raise NotImplementedError
 
-    def braking_input(self, x: ArrayLike) -> NDArray[np.float64]:
-        """Safe fallback input: maximum braking along the current heading."""
+    def braking_input(self, x: ArrayLike, dt: float | None = None) -> NDArray[np.float64]:
+        """Fallback input: the strongest braking along the current heading that brings the ego to
+        rest within one step of ``dt`` (when given) and never reverses it."""
         raise NotImplementedError
 
     def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
@@ -84,7 +85,7 @@ class SingleIntegrator(DynamicsModel):
     def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return np.full(2, -self.u_max), np.full(2, self.u_max)
 
-    def braking_input(self, x: ArrayLike) -> NDArray[np.float64]:
+    def braking_input(self, x: ArrayLike, dt: float | None = None) -> NDArray[np.float64]:
         return np.zeros(2)
 
 
@@ -146,5 +147,10 @@ class KinematicBicycle(DynamicsModel):
     def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return np.array([-self.steer_max, self.accel_min]), np.array([self.steer_max, self.accel_max])
 
-    def braking_input(self, x: ArrayLike) -> NDArray[np.float64]:
-        return np.array([0.0, self.accel_min])
+    def braking_input(self, x: ArrayLike, dt: float | None = None) -> NDArray[np.float64]:
+        v = float(np.asarray(x, dtype=float)[3])
+        if dt is None or not dt > 0:
+            a = self.accel_min if v > 0 else (self.accel_max if v < 0 else 0.0)
+        else:
+            a = min(self.accel_max, max(self.accel_min, -v / dt))  # to rest, not past it
+        return np.array([0.0, a])

@@ -7,36 +7,47 @@ perception and trust estimation.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control.models import DynamicsModel
-from trustnav.control.problem import MpcConfig, MpcProblem, make_problem
-from trustnav.control.solvers import FEAS_TOL, SlsqpSolver, SolveResult, SolveStatus, SqpSolver
+from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians, make_problem
+from trustnav.control.solvers import FEAS_TOL, SlsqpSolver, SolveResult, SolveStatus, SqpSolver, rank_key
 
 __all__ = ["MpcController", "MpcSolution"]
 
 
 @dataclass
 class MpcSolution:
-    """What one control step decided, and how."""
+    """What one control step decided, and how. Every field describes the plan actually returned."""
 
     control: NDArray[np.float64]  # u(t), the input to apply
     inputs: NDArray[np.float64]  # planned u(t..t+N_h-1)
     predicted_states: NDArray[np.float64]  # x(t..t+N_h) under the plan (after latency compensation)
-    status: SolveStatus
-    fallback: bool  # True: the solver failed and the braking fallback was applied
-    slack_used: bool  # True: the hard CBF rows were infeasible and were relaxed
-    cbf_violation: float  # worst relaxation of a CBF row (m^2), 0 when the hard problem held
+    status: SolveStatus  # the solver's status, or FALLBACK when a fallback plan was applied
+    fallback: bool  # True: the shifted previous plan or braking was applied instead of the solver's plan
+    slack_used: bool  # True: the returned plan violates some CBF row (no hard-feasible plan was found)
+    cbf_violation: float  # worst CBF-row violation of the returned plan (m^2), 0 when every row holds
     iterations: int
-    solve_time: float  # seconds
+    solve_time: float  # seconds, the whole step
     message: str = ""
+    source: str = "solver"  # "solver", "previous_plan" or "braking"
+    first_row_violation: float = 0.0  # worst violation of the first rows an input can change (k = 0; bicycle k = 1)
+    decided_violation: float = 0.0  # worst violation of rows fixed by the current state (bicycle k = 0)
+    recovered: bool = False  # the solver's feasibility recovery found a hard-feasible start
+    deadline_hit: bool = False  # the step deadline cut the solve short
 
 
 class MpcController:
-    """Receding-horizon controller: solve `proposed`, apply the first input, shift, repeat."""
+    """Receding-horizon controller: solve `proposed`, apply the first input, shift, repeat.
+
+    Every step returns a checked plan: when the solver does not end OPTIMAL, its plan, the
+    shifted previous plan and braking to rest are checked against the exact CBF rows and the
+    best by (first-row violation, total violation over the horizon, cost) is applied (:func:`rank_key`).
+    """
 
     def __init__(
         self,
@@ -49,7 +60,16 @@ class MpcController:
         self.config = config or MpcConfig()
         self.problem: MpcProblem = make_problem(model, cost, self.config)
         self.solver = solver or SqpSolver()
+        self._warm_up()
         self.reset()
+
+    def _warm_up(self) -> None:
+        """Load the compiled kernels now (numba), so the first step's deadline measures solving."""
+        p = self.problem
+        x = np.zeros(self.model.nx)
+        p.set_stage(x, [[1e3, 1e3]], None, [0.0])
+        p.build(p.initial_guess())
+        p.set_stage(x, np.zeros((0, 2)), None, [])
 
     def reset(self) -> None:
         self._plan: NDArray[np.float64] | None = None
@@ -58,16 +78,20 @@ class MpcController:
     def compensate_latency(self, state: ArrayLike, pedestrians: ArrayLike, velocities: ArrayLike | None):
         """Predict ego (with the input being applied) and pedestrians (constant velocity) ahead by
         the configured latency, so the plan starts where the vehicle will be when it acts."""
+        peds = np.asarray(pedestrians, dtype=float) if np.size(pedestrians) else np.zeros((0, 2))
+        n_p = peds.shape[0] if peds.ndim == 2 else 0
+        peds, vels, _ = as_pedestrians(pedestrians, velocities, np.zeros(n_p))
+        return self._compensate(self.model.check_state(state), peds, vels, velocities is not None)
+
+    def _compensate(self, x, peds, vels, moving: bool):
         lat = self.config.latency
-        x = self.model.check_state(state)
-        peds = np.asarray(pedestrians, dtype=float).reshape(-1, 2)
         if lat <= 0:
             return x, peds
         n_sub = max(1, int(np.ceil(lat / 0.02)))
         for _ in range(n_sub):
             x = self.model.step(x, self._last_control, lat / n_sub)
-        if velocities is not None:
-            peds = peds + np.asarray(velocities, dtype=float).reshape(-1, 2) * lat
+        if moving:
+            peds = peds + vels * lat
         return x, peds
 
     def step(
@@ -79,32 +103,54 @@ class MpcController:
     ) -> MpcSolution:
         """One MPC step from ego ``state`` with pedestrians (N_p, 2), velocities (N_p, 2) and
         trusts (N_p,) in [0, 1]."""
-        x, peds = self.compensate_latency(state, pedestrians, velocities)
+        t0 = time.perf_counter()
+        peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)  # refuse bad input first
+        x, peds = self._compensate(self.model.check_state(state), peds, vels, velocities is not None)
         p = self.problem
-        p.set_stage(x, peds, velocities, trusts, self._last_control)
-        if self._plan is None:
-            u0 = p.initial_guess()
-        else:
-            u0 = np.vstack([self._plan[1:], self._plan[-1:]])
-        res: SolveResult = self.solver.solve(p, u0)
-        accept = res.status.ok or (res.status is SolveStatus.MAX_ITER and res.cbf_violation <= FEAS_TOL)
-        if accept:
-            plan = res.inputs
-            fallback = False
-        else:
-            plan = np.tile(self.model.braking_input(x), (p.n_h, 1))
-            fallback = True
-        self._plan = plan.copy() if accept else None
+        p.set_stage(x, peds, vels, tr, self._last_control)
+        shifted = None if self._plan is None else np.vstack([self._plan[1:], self._plan[-1:]])
+        u0 = p.initial_guess() if shifted is None else shifted
+        deadline = self.config.step_deadline
+        res: SolveResult = self.solver.solve(p, u0, deadline=max(deadline - (time.perf_counter() - t0), 0.0))
+        plan, status, source = res.inputs, res.status, "solver"
+        fv, viol, message = res.first_row_violation, res.cbf_violation, res.message
+        if res.status is not SolveStatus.OPTIMAL:
+            # checked, ranked fallbacks: the solver's plan competes with the shifted previous plan
+            # and braking to rest; ties keep the solver's plan
+            cands = [("solver", res.inputs)] if np.isfinite(res.inputs).all() else []
+            if shifted is not None:
+                cands.append(("previous_plan", np.clip(shifted, p.ulo, p.uhi)))
+            cands.append(("braking", p.braking_plan()))
+            scored = []
+            for i, (name, u) in enumerate(cands):
+                chk = p.evaluate(u)
+                scored.append((rank_key(chk), i, name, u, chk.first_row, chk.worst))
+            _, _, source, plan, fv, viol = min(scored, key=lambda r: (r[0], r[1]))
+            if source != "solver":
+                status = SolveStatus.FALLBACK
+                message = f"{source} applied (violation {viol:.3g}) instead of the solver's plan: " + (
+                    f"{res.status.value}: {res.message}" if res.message else res.status.value
+                )
+        decided = p.decided_violation()  # the same at every plan: any build since set_stage holds it
+        if decided > FEAS_TOL:
+            note = f"CBF rows fixed by the current state (no input changes them) violated by {decided:.3g}"
+            message = f"{message}; {note}" if message else note
+        self._plan = plan.copy()
         self._last_control = plan[0].copy()
         return MpcSolution(
             control=plan[0].copy(),
-            inputs=plan,
+            inputs=plan.copy(),
             predicted_states=self.model.rollout(x, plan, self.config.dt),
-            status=res.status,
-            fallback=fallback,
-            slack_used=res.slack_used,
-            cbf_violation=res.cbf_violation,
+            status=status,
+            fallback=source != "solver",
+            slack_used=viol > FEAS_TOL,
+            cbf_violation=viol,
             iterations=res.iterations,
-            solve_time=res.solve_time,
-            message=res.message,
+            solve_time=time.perf_counter() - t0,
+            message=message,
+            source=source,
+            first_row_violation=fv,
+            decided_violation=decided,
+            recovered=res.recovered,
+            deadline_hit=res.deadline_hit,
         )

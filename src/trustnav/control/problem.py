@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,16 +29,19 @@ __all__ = [
     "LaneTrackingCost",
     "MpcConfig",
     "MpcProblem",
+    "PlanCheck",
     "SingleIntegratorProblem",
     "TrackingWeights",
     "VelocityTrackingCost",
+    "as_pedestrians",
     "make_problem",
 ]
 
 
 @dataclass(frozen=True)
 class MpcConfig:
-    """Horizon N_h, step dt, margin R, gamma(trust) of `weight`, CBF timing, latency (s)."""
+    """Horizon N_h, step dt, margin R, gamma(trust) of `weight`, CBF timing, latency (s), and the
+    wall-clock deadline of one controller step (s; None = half of dt)."""
 
     horizon: int = 7
     dt: float = 0.05
@@ -45,6 +49,11 @@ class MpcConfig:
     gamma: GammaParams = field(default_factory=lambda: PAPER_GAMMA_NUMERICAL)
     timing: Timing = "paper"
     latency: float = 0.0
+    deadline: float | None = None
+
+    @property
+    def step_deadline(self) -> float:
+        return 0.5 * self.dt if self.deadline is None else self.deadline
 
     def __post_init__(self) -> None:
         if not isinstance(self.horizon, int) or self.horizon < 1:
@@ -57,6 +66,18 @@ class MpcConfig:
             raise ValueError(f"timing must be one of {TIMINGS}, got {self.timing!r}")
         if not self.latency >= 0 or math.isinf(self.latency):
             raise ValueError(f"latency must be >= 0 seconds, got {self.latency!r}")
+        if self.deadline is not None and (not self.deadline > 0 or math.isinf(self.deadline)):
+            raise ValueError(f"deadline must be a positive finite time in seconds (or None), got {self.deadline!r}")
+
+
+def _finite_pair(value: object, name: str) -> tuple[float, float]:
+    try:
+        pair = tuple(float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be 2 finite coordinates, got {value!r}") from exc
+    if len(pair) != 2 or not all(math.isfinite(v) for v in pair):
+        raise ValueError(f"{name} must be 2 finite coordinates, got {value!r}")
+    return pair  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -67,9 +88,7 @@ class VelocityTrackingCost:
     reference: BoundedProportionalReference = field(default_factory=BoundedProportionalReference)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "goal", tuple(float(g) for g in self.goal))
-        if len(self.goal) != 2:
-            raise ValueError(f"goal must be 2 coordinates, got {self.goal!r}")
+        object.__setattr__(self, "goal", _finite_pair(self.goal, "goal"))
 
 
 @dataclass(frozen=True)
@@ -108,27 +127,53 @@ class LaneTrackingCost:
     weights: TrackingWeights = field(default_factory=TrackingWeights)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start", tuple(float(g) for g in self.start))
-        object.__setattr__(self, "goal", tuple(float(g) for g in self.goal))
+        object.__setattr__(self, "start", _finite_pair(self.start, "lane start"))
+        object.__setattr__(self, "goal", _finite_pair(self.goal, "lane goal"))
         if self.start == self.goal:
             raise ValueError("lane start and goal must differ")
 
 
-def _as_pedestrians(pedestrians: ArrayLike, velocities: ArrayLike | None, trusts: ArrayLike):
-    peds = np.ascontiguousarray(np.asarray(pedestrians, dtype=float).reshape(-1, 2))
+MAX_COORDINATE = 1e12  # m; beyond it float64 spacing exceeds 0.1 mm
+
+
+class PlanCheck(NamedTuple):
+    """Exact check of one plan: violations of the CBF rows (m^2) and cost."""
+
+    first_row: float  # worst violation of the k = 0 rows (those that decide the next state)
+    worst: float  # worst violation over the horizon
+    total: float  # sum of violations over the horizon
+    cost: float
+
+
+def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
+    """An (N, 2) array of finite points (N may be 0); anything else is refused by name and shape."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be an (N, 2) array of numbers, got {value!r}") from exc
+    if arr.size == 0:
+        return np.zeros((0, 2))
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        hint = " (a (2, N) array? pass its transpose)" if arr.ndim == 2 and arr.shape[0] == 2 else ""
+        raise ValueError(f"{name} must be an (N, 2) array of x, y pairs, got shape {arr.shape}{hint}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite, got {arr.tolist()!r}")
+    return np.ascontiguousarray(arr)
+
+
+def as_pedestrians(pedestrians: ArrayLike, velocities: ArrayLike | None, trusts: ArrayLike):
+    """Validated pedestrians (N, 2), velocities (N, 2) (zeros when None) and trusts (N,)."""
+    peds = _points(pedestrians, "pedestrians")
     n_p = peds.shape[0]
-    vels = (
-        np.zeros((n_p, 2))
-        if velocities is None
-        else np.ascontiguousarray(np.asarray(velocities, dtype=float).reshape(-1, 2))
-    )
-    tr = np.asarray(trusts, dtype=float).reshape(-1)
+    vels = np.zeros((n_p, 2)) if velocities is None else _points(velocities, "velocities")
+    try:
+        tr = np.asarray(trusts, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"trusts must be N numbers in [0, 1], got {trusts!r}") from exc
     if vels.shape[0] != n_p or tr.shape[0] != n_p:
         raise ValueError(
             f"pedestrians ({n_p}), velocities ({vels.shape[0]}) and trusts ({tr.shape[0]}) must have one entry each"
         )
-    if not math.isfinite(peds.sum() + vels.sum()):
-        raise ValueError("pedestrian positions and velocities must be finite")
     return peds, vels, tr
 
 
@@ -151,10 +196,16 @@ class MpcProblem:
         self.hi = np.tile(self.uhi, self.n_h)
         self.timing_code = 0 if config.timing == "paper" else 1
         self.x0 = np.zeros(model.nx)
+        self.origin = np.zeros(2)
         self._resize(0)
+
+    #: leading horizon steps whose CBF rows no input can change (the bicycle's position at k = 1
+    #: depends on the state only): they are reported, but left out of the QP and of feasibility
+    decided_steps: int = 0
 
     def _resize(self, n_p: int) -> None:
         self.n_p = n_p
+        self.n_decided = n_p * self.decided_steps  # rows fixed by the current state
         self.m_cbf = n_p * self.n_h
         self.m = self.m_cbf + self.n_extra_rows
         self.H = 2.0 * np.eye(self.n)
@@ -173,8 +224,19 @@ class MpcProblem:
         u_prev: ArrayLike | None = None,
     ) -> None:
         """Data of one MPC step; gamma_j from trust_j by `weight`."""
-        self.x0 = np.ascontiguousarray(self.model.check_state(state))
-        self.peds, self.vels, tr = _as_pedestrians(pedestrians, velocities, trusts)
+        x0 = self.model.check_state(state).copy()
+        peds, self.vels, tr = as_pedestrians(pedestrians, velocities, trusts)
+        # ego-centred coordinates: the problem is solved relative to the ego's position, so large
+        # map coordinates (1e9 m) lose no precision; inputs are translation invariant
+        if np.abs(x0[:2]).max() > MAX_COORDINATE:
+            raise ValueError(
+                f"ego position {x0[:2].tolist()} is beyond +-{MAX_COORDINATE:g} m, where float64 cannot hold "
+                "millimetre offsets between ego and pedestrians: use a local origin"
+            )
+        self.origin = x0[:2].copy()
+        x0[:2] = 0.0
+        self.x0 = np.ascontiguousarray(x0)
+        self.peds = np.ascontiguousarray(peds - self.origin)
         self.one_minus_gamma = np.ascontiguousarray(1.0 - gamma(tr, self.config.gamma))
         if self.peds.shape[0] != self.n_p:
             self._resize(self.peds.shape[0])
@@ -191,6 +253,41 @@ class MpcProblem:
     def initial_guess(self) -> NDArray[np.float64]:
         raise NotImplementedError
 
+    def evaluate(self, u: NDArray[np.float64]) -> PlanCheck:
+        """Exact check of a plan U against the CBF rows of `cbf_imp` (violations max(0, -row) in
+        m^2) and its cost. Fills the QP buffers at U as a side effect (like :meth:`build`)."""
+        cost = self.build(u)
+        return self.check_built(cost)
+
+    def check_built(self, cost: float) -> PlanCheck:
+        """:class:`PlanCheck` of the point of the last :meth:`build` (which returned ``cost``)."""
+        g = self.g[self.n_decided :]
+        if g.size == 0 or g.min() >= 0.0:
+            return PlanCheck(0.0, 0.0, 0.0, cost)
+        viol = np.maximum(0.0, -g)
+        return PlanCheck(float(viol[: self.n_p].max()), float(viol.max()), float(viol.sum()), cost)
+
+    def decided_violation(self) -> float:
+        """Worst violation of the rows no input can change (0 for the single integrator), at the
+        point of the last :meth:`build`."""
+        return max(0.0, -float(self.g[: self.n_decided].min())) if self.n_decided else 0.0
+
+    def braking_plan(self) -> NDArray[np.float64]:
+        """Plan that brings the ego to rest as fast as the input bounds allow, then holds it."""
+        return np.tile(self.model.braking_input(self.x0, self.config.dt), (self.n_h, 1))
+
+    def candidate_starts(self, n_pedestrians: int = 3) -> list[NDArray[np.float64]]:
+        """Starting plans for feasibility recovery: braking, the reference, and evasions from the
+        most binding pedestrians (the lowest CBF rows at the last built point)."""
+        raise NotImplementedError
+
+    def binding_pedestrians(self, count: int) -> NDArray[np.int64]:
+        """Indices of the pedestrians with the lowest CBF rows at the last built point."""
+        if self.n_p == 0:
+            return np.zeros(0, dtype=np.int64)
+        worst = self.g.reshape(self.n_h, self.n_p).min(axis=0)
+        return np.argsort(worst, kind="stable")[:count]
+
     # ---- plain numpy evaluation (reference path) ----
     def states_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
         return self.model.rollout(self.x0, np.asarray(u_flat).reshape(self.n_h, -1), self.config.dt)
@@ -205,6 +302,10 @@ class MpcProblem:
         rows = cbf_rows(xs[:, :2], self.peds, self.vels, self.one_minus_gamma, c.safety_radius, c.dt, c.timing)
         return np.concatenate([rows.ravel(), self._extra_rows_np(xs)])
 
+    def decision_rows_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
+        """The rows an input sequence can change: :meth:`constraints_np` without the decided rows."""
+        return self.constraints_np(u_flat)[self.n_decided :]
+
     def _extra_rows_np(self, xs: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.zeros(0)
 
@@ -218,7 +319,8 @@ class SingleIntegratorProblem(MpcProblem):
         super().__init__(model, config)
 
     def _set_reference(self) -> None:
-        self.ubar = np.ascontiguousarray(self.cost.reference.velocities(self.x0, self.goal, self.n_h, self.config.dt))
+        goal = self.goal - self.origin
+        self.ubar = np.ascontiguousarray(self.cost.reference.velocities(self.x0, goal, self.n_h, self.config.dt))
 
     def build(self, u: NDArray[np.float64]) -> float:
         c = self.config
@@ -230,6 +332,24 @@ class SingleIntegratorProblem(MpcProblem):
     def initial_guess(self) -> NDArray[np.float64]:
         return np.clip(self.ubar, self.ulo, self.uhi)
 
+    def candidate_starts(self, n_pedestrians: int = 3) -> list[NDArray[np.float64]]:
+        """Constant-velocity plans: stop, the reference, and for each binding pedestrian
+        backing away, passing on either side, and both diagonals, at the reference speed, half of
+        it and a quarter of the input bound (the CBF rows are non-convex: a pedestrian can be
+        passed on either side, or backed away from)."""
+        starts = [np.zeros((self.n_h, 2)), self.initial_guess()]
+        ref = float(np.hypot(*self.ubar[0]))
+        speeds = [s for s in (ref, 0.5 * ref) if s > 1e-6] + [0.25 * float(self.uhi.min())]
+        for j in self.binding_pedestrians(n_pedestrians):
+            away = -self.peds[j]  # ego at the origin
+            norm = float(np.hypot(*away))
+            e = away / norm if norm > 1e-9 else np.array([1.0, 0.0])  # on top of the ego: any way out
+            t = np.array([-e[1], e[0]])
+            for d in (e, t, -t, (e + t) / np.sqrt(2), (e - t) / np.sqrt(2)):
+                for s in speeds:
+                    starts.append(np.clip(np.tile(s * d, (self.n_h, 1)), self.ulo, self.uhi))
+        return starts
+
     def cost_np(self, u_flat: ArrayLike) -> float:
         e = np.asarray(u_flat, dtype=float).reshape(self.n_h, 2) - self.ubar
         return float(np.sum(e * e))
@@ -239,6 +359,7 @@ class BicycleProblem(MpcProblem):
     """`proposed` with the kinematic bicycle and the Section IV lane-tracking cost."""
 
     nonlinear = True
+    decided_steps = 1
 
     def __init__(self, model: KinematicBicycle, cost: LaneTrackingCost, config: MpcConfig) -> None:
         self.cost = cost
@@ -247,22 +368,64 @@ class BicycleProblem(MpcProblem):
         super().__init__(model, config)
 
     def _set_reference(self) -> None:
-        pts, yaw, v = self.cost.reference.lane_waypoints(
-            self.x0[:2], self.cost.start, self.cost.goal, self.n_h, self.config.dt
-        )
+        start = np.asarray(self.cost.start) - self.origin
+        goal = np.asarray(self.cost.goal) - self.origin
+        pts, yaw, v = self.cost.reference.lane_waypoints(self.x0[:2], start, goal, self.n_h, self.config.dt)
         self.ref_pts, self.ref_yaw, self.ref_v = np.ascontiguousarray(pts), yaw, v
 
     def build(self, u: NDArray[np.float64]) -> float:
         c = self.config
         m = self.model
-        return kern.bicycle_qp(
+        cost = kern.bicycle_qp(
             self.x0, u, self.u_prev, self.ref_pts, self.ref_yaw, self.ref_v, self.weights, m.wheelbase,
             m.speed_min, m.speed_max, self.peds, self.vels, self.one_minus_gamma, c.safety_radius**2, c.dt,
             self.timing_code, self.ulo, self.uhi, self.H, self.f, self.A, self.bl, self.bu, self.g,
         )  # fmt: skip
+        self.bl[self.n : self.n + self.n_decided] = -kern.INF  # decided rows: nothing to choose
+        return cost
 
     def initial_guess(self) -> NDArray[np.float64]:
         return np.zeros((self.n_h, 2))
+
+    def states_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
+        """:meth:`KinematicBicycle.step` along the horizon, in plain floats (the reference path's
+        hot loop)."""
+        u = np.asarray(u_flat, dtype=float).reshape(self.n_h, 2).tolist()
+        dt, wb = self.config.dt, self.model.wheelbase
+        px, py, yaw, v = (float(c) for c in self.x0)
+        out = [[px, py, yaw, v]]
+        for steer, acc in u:
+            px, py, yaw, v = (px + v * math.cos(yaw) * dt, py + v * math.sin(yaw) * dt,
+                              yaw + v * math.tan(steer) / wb * dt, v + acc * dt)  # fmt: skip
+            out.append([px, py, yaw, v])
+        return np.array(out)
+
+    def _plan(self, steer: float, accel: str) -> NDArray[np.float64]:
+        """Constant steer with acceleration 'hold' (0), 'brake' (to rest at the strongest
+        deceleration, never reversing) or 'ease' (half of it)."""
+        m = self.model
+        dt = self.config.dt
+        u = np.zeros((self.n_h, 2))
+        u[:, 0] = steer
+        v = float(self.x0[3])
+        for k in range(self.n_h):
+            if accel == "hold":
+                a = 0.0
+            else:
+                a_min = m.accel_min if accel == "brake" else 0.5 * m.accel_min
+                a = min(m.accel_max, max(a_min, -v / dt))  # reach v = 0 exactly, never below
+            u[k, 1] = a
+            v += a * dt
+        return u
+
+    def braking_plan(self) -> NDArray[np.float64]:
+        return self._plan(0.0, "brake")
+
+    def candidate_starts(self, n_pedestrians: int = 3) -> list[NDArray[np.float64]]:
+        """Constant-steer plans (straight, half and full lock either way) that hold speed,
+        ease off or brake to rest."""
+        sm = self.model.steer_max
+        return [self._plan(st, acc) for acc in ("brake", "ease", "hold") for st in (0.0, 0.5 * sm, -0.5 * sm, sm, -sm)]
 
     def cost_np(self, u_flat: ArrayLike) -> float:
         u = np.asarray(u_flat, dtype=float).reshape(self.n_h, 2)
@@ -285,8 +448,16 @@ class BicycleProblem(MpcProblem):
 
     def _extra_rows_np(self, xs: NDArray[np.float64]) -> NDArray[np.float64]:
         v = xs[1:, 3]
+        lo, hi = self.speed_bounds()
+        return np.concatenate([v - lo, hi - v])
+
+    def speed_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Bounds on v(1..N_h): [speed_min, speed_max], widened to the speeds the acceleration
+        bounds can reach from v(0), so that the speed rows are always feasible."""
         m = self.model
-        return np.concatenate([v - m.speed_min, m.speed_max - v])
+        k = np.arange(1, self.n_h + 1) * self.config.dt
+        v0 = self.x0[3]
+        return np.minimum(m.speed_min, v0 + k * m.accel_max), np.maximum(m.speed_max, v0 + k * m.accel_min)
 
 
 def make_problem(model: DynamicsModel, cost: object, config: MpcConfig) -> MpcProblem:

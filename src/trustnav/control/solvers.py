@@ -16,18 +16,20 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
-from trustnav.control.problem import MpcProblem
+from trustnav.control.problem import MpcProblem, PlanCheck
 
-__all__ = ["SlsqpSolver", "SolveResult", "SolveStatus", "SqpSolver", "make_solver"]
+__all__ = ["FEAS_TOL", "SlsqpSolver", "SolveResult", "SolveStatus", "SqpSolver", "make_solver", "rank_key"]
 
+DEADLINE = "deadline"  # QP flag: not started, it would not end before the deadline
 FEAS_TOL = 1e-6  # tolerance on CBF rows (units of the barrier, m^2) to call a solution feasible
 
 
 class SolveStatus(enum.Enum):
     OPTIMAL = "optimal"  # converged, every CBF row holds
-    RELAXED = "relaxed"  # converged with slack: the hard problem was infeasible
-    MAX_ITER = "max_iter"  # iteration limit reached; rows checked, violation reported
-    FAILED = "failed"  # the QP / NLP solver failed; the controller applies its fallback
+    RELAXED = "relaxed"  # converged with slack: no hard-feasible plan was found
+    MAX_ITER = "max_iter"  # iteration limit or deadline reached; the best checked plan, violation reported
+    FAILED = "failed"  # the QP / NLP solver failed
+    FALLBACK = "fallback"  # the controller applied a checked fallback plan (previous plan or braking)
 
     @property
     def ok(self) -> bool:
@@ -41,27 +43,55 @@ class SolveResult:
     iterations: int
     cost: float
     cbf_violation: float  # max over rows of max(0, -row), exact, at `inputs`
-    slack_used: bool
+    slack_used: bool  # the returned plan violates some CBF row (by more than FEAS_TOL)
     message: str = ""
     solve_time: float = 0.0
+    first_row_violation: float = 0.0  # max over the k = 0 rows, exact, at `inputs`
+    recovered: bool = False  # a feasibility recovery found a hard-feasible start
+    restarts: int = 0  # candidate starts tried by the recovery
+    deadline_hit: bool = False
 
 
-def _check(problem: MpcProblem, u: NDArray[np.float64]) -> tuple[float, float]:
-    """Exact cost and worst CBF row violation at U (compiled evaluation)."""
-    cost = problem.build(u)
-    viol = float(max(0.0, -problem.g.min())) if problem.g.size else 0.0
-    return cost, viol
+def rank_key(check: PlanCheck) -> tuple[float, float, float]:
+    """Order of plans: first-row violation, then total violation over the horizon, then cost
+    (violations within FEAS_TOL count as none)."""
+    fv = check.first_row if check.first_row > FEAS_TOL else 0.0
+    tv = check.total if check.worst > FEAS_TOL else 0.0
+    return fv, tv, check.cost if math.isfinite(check.cost) else math.inf
+
+
+class _Best:
+    """The best plan seen so far by :func:`rank_key` (every point the solver evaluates exactly)."""
+
+    def __init__(self) -> None:
+        self.key: tuple[float, float, float] | None = None
+        self.u: NDArray[np.float64] | None = None
+        self.check = PlanCheck(math.inf, math.inf, math.inf, math.inf)
+
+    def offer(self, u: NDArray[np.float64], check: PlanCheck) -> None:
+        if not math.isfinite(check.total + float(u.sum())):
+            return
+        key = rank_key(check)
+        if self.key is None or key < self.key:
+            self.key, self.u, self.check = key, u.copy(), check
 
 
 class SqpSolver:
     """Sequential quadratic programming on `proposed` with DAQP for each QP.
 
     Each iteration linearises the CBF rows (and, for the bicycle, the dynamics) at the current
-    iterate with analytic Jacobians and solves a dense QP in the step. If a QP is infeasible, the
-    rest of the solve uses one slack s >= 0 per CBF row with an exact L1 penalty
-    ``slack_penalty`` (plus a tiny quadratic term so the QP stays strictly convex): whenever the
-    hard problem is feasible and its multipliers are below the penalty, the slack is zero and
-    the hard solution is returned. Nonlinear models take a backtracking step on an L1 merit.
+    iterate with analytic Jacobians and solves a dense QP in the step. The CBF rows are
+    non-convex (a pedestrian can be passed on either side, or backed away from), so a QP that is
+    infeasible at one linearisation says little about the problem: the solver then runs a
+    **feasibility recovery**, ranking the problem's candidate starts (braking, the reference, the
+    best point so far, evasions from the binding pedestrians) by their exact CBF violation and
+    trying the hard QP at each until one is feasible, and continues with hard rows from there.
+    Only when no start gives a feasible hard QP does it relax: slacks with an exact L1 penalty
+    ``slack_penalty`` (plus a tiny quadratic term), one per CBF row for the most binding
+    pedestrians and fewer, shared ones for the rest (:meth:`_slack_columns`), so the QP stays
+    small with hundreds of pedestrians. Nonlinear models take a backtracking step on an L1 merit.
+    Every point evaluated is checked exactly; with a deadline (seconds) the best checked plan so
+    far is returned when it passes.
     """
 
     name = "sqp-daqp"
@@ -72,34 +102,73 @@ class SqpSolver:
         tol: float = 1e-9,
         slack_penalty: float = 1e6,
         slack_quadratic: float = 1e-2,
+        max_restarts: int = 12,
+        row_slack_pedestrians: int = 8,
+        slack_budget: int = 56,
     ) -> None:
         if max_iter < 1 or not tol > 0 or not slack_penalty > 0 or not slack_quadratic > 0:
             raise ValueError("max_iter >= 1, tol > 0, slack_penalty > 0 and slack_quadratic > 0 are required")
+        if max_restarts < 0 or row_slack_pedestrians < 0:
+            raise ValueError("max_restarts and row_slack_pedestrians must be >= 0")
         self.max_iter = max_iter
         self.tol = tol
         self.slack_penalty = slack_penalty
         self.slack_quadratic = slack_quadratic
-        self._models: dict[tuple[int, int, bool], daqp.Model] = {}
+        self.max_restarts = max_restarts
+        self.row_slack_pedestrians = row_slack_pedestrians
+        self.slack_budget = slack_budget
+        # one DAQP workspace per (problem class, QP size, mode): problems of different models
+        # never share a workspace, so a cached Hessian cannot be reused for another model
+        self._models: dict[tuple[str, int, int, bool], daqp.Model] = {}
+        self._qp_seconds: dict[tuple[str, int, int, bool], float] = {}  # last solve time per size
 
-    def _qp(self, p: MpcProblem, relaxed: bool):
-        if not relaxed:
+    # ---- QPs ----
+    def _slack_columns(self, p: MpcProblem) -> tuple[NDArray[np.int64], int]:
+        """Column (after the n inputs) of the slack of each CBF row, and the slack count.
+
+        DAQP's work grows with (rows) x (variables)^2, so the slacks are budgeted: one per row for
+        the most binding pedestrians (at most ``row_slack_pedestrians``, and at most
+        ``slack_budget`` rows), one per pedestrian for up to 16 more, one shared by the rest.
+        """
+        order = p.binding_pedestrians(p.n_p)
+        n_row = min(self.row_slack_pedestrians, p.n_p, self.slack_budget // p.n_h)
+        n_own = min(p.n_p - n_row, 16)
+        slot = np.empty(p.n_p, dtype=np.int64)
+        slot[order] = np.arange(p.n_p)
+        k = np.repeat(np.arange(p.n_h), p.n_p)
+        s = slot[np.tile(np.arange(p.n_p), p.n_h)]
+        per_row = n_row * p.n_h
+        cols = np.where(s < n_row, s * p.n_h + k, per_row + np.minimum(s - n_row, n_own))
+        n_shared = 1 if p.n_p > n_row + n_own else 0
+        return cols, per_row + n_own + n_shared
+
+    def _qp(self, p: MpcProblem, slack: tuple[NDArray[np.int64], int] | None, until: float | None = None):
+        """Solve the QP at the last built point; (step, flag), step None when infeasible or failed.
+        With ``until`` (a perf_counter time) a QP whose last solve of this size would not end by
+        then is not started: (None, DEADLINE)."""
+        t_start = time.perf_counter()
+        relaxed = slack is not None
+        if slack is None:
             h, f, a, bu, bl = p.H, p.f, p.A, p.bu, p.bl
         else:
+            cols, ns = slack
             n, m, mc = p.n, p.m, p.m_cbf
-            h = np.zeros((n + mc, n + mc))
+            h = np.zeros((n + ns, n + ns))
             h[:n, :n] = p.H
-            h[n:, n:] = np.eye(mc) * self.slack_quadratic
-            f = np.concatenate([p.f, np.full(mc, self.slack_penalty)])
-            a = np.zeros((m, n + mc))
+            h[n:, n:] = np.eye(ns) * self.slack_quadratic
+            f = np.concatenate([p.f, np.full(ns, self.slack_penalty)])
+            a = np.zeros((m, n + ns))
             a[:, :n] = p.A
-            a[:mc, n:] = np.eye(mc)
-            bl = np.concatenate([p.bl[:n], np.zeros(mc), p.bl[n:]])
-            bu = np.concatenate([p.bu[:n], np.full(mc, 1e20), p.bu[n:]])
+            a[np.arange(mc), n + cols] = 1.0
+            bl = np.concatenate([p.bl[:n], np.zeros(ns), p.bl[n:]])
+            bu = np.concatenate([p.bu[:n], np.full(ns, 1e20), p.bu[n:]])
         if a.shape[0] == 0:  # no rows: DAQP gets one row that always holds
             a = np.zeros((1, h.shape[0]))
             bl = np.append(bl, -1e20)
             bu = np.append(bu, 1e20)
-        key = (h.shape[0], a.shape[0], relaxed)
+        key = (type(p).__name__, h.shape[0], a.shape[0], relaxed)
+        if until is not None and t_start + self._qp_seconds.get(key, 0.0) > until:
+            return None, DEADLINE
         model = self._models.get(key)
         if model is None:
             model = daqp.Model()
@@ -108,7 +177,7 @@ class SqpSolver:
                 return None, flag
             self._models[key] = model
         else:
-            # H of a linear model's problem is constant: leave it (and its factorisation) in place
+            # H of a linear model's problem is constant (per problem class): leave it in place
             if p.nonlinear or relaxed:
                 flag = model.update(H=h, f=f, A=a, bupper=bu, blower=bl)
             else:
@@ -116,36 +185,89 @@ class SqpSolver:
             if flag is not None and flag < 0:
                 return None, flag
         x, _, exitflag, _ = model.solve()
+        self._qp_seconds[key] = time.perf_counter() - t_start
         if exitflag < 0:
             return None, exitflag
         return np.asarray(x[: p.n]), exitflag
 
-    def solve(self, problem: MpcProblem, u0: NDArray[np.float64]) -> SolveResult:
+    def _recover(self, p: MpcProblem, u: NDArray[np.float64], best: _Best, budget: int, until: float | None):
+        """Feasibility recovery: candidate starts ranked by exact violation; the first whose
+        hard QP is feasible. Returns (start, step, cost, tried) or (None, None, nan, tried)."""
+        p.build(u)  # binding pedestrians at the point where the QP failed
+        starts = [u] + ([best.u] if best.u is not None else []) + p.candidate_starts()
+        ranked = []
+        for c in starts:
+            c = np.minimum(np.maximum(c, p.ulo), p.uhi)
+            chk = p.evaluate(c)
+            best.offer(c, chk)
+            ranked.append((rank_key(chk), len(ranked), c))
+        ranked.sort(key=lambda r: (r[0], r[1]))
+        tried = 0
+        for _, idx, c in ranked:
+            if idx == 0:  # the point whose QP just failed
+                continue
+            if tried >= budget:
+                break
+            cost = p.build(c)
+            step, flag = self._qp(p, None, until)
+            if flag == DEADLINE:
+                break
+            tried += 1
+            if step is not None:
+                return c.copy(), step, cost, tried
+        return None, None, math.nan, tried
+
+    def solve(self, problem: MpcProblem, u0: NDArray[np.float64], deadline: float | None = None) -> SolveResult:
         t0 = time.perf_counter()
+
+        until = None if deadline is None else t0 + deadline
+        until_recovery = None if deadline is None else t0 + 0.5 * deadline  # half left for relaxing
+
         p = problem
         u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
-        relaxed = False
-        converged = False
+        best = _Best()
+        slack: tuple[NDArray[np.int64], int] | None = None
+        converged = recovered = deadline_hit = False
+        restarts = 0
         message = ""
         it = 0
+        cost = math.nan
         fresh = False  # True when the problem's buffers already hold the data at u (accepted trial)
+        step = None
         for it in range(1, self.max_iter + 1):
+            if until is not None and time.perf_counter() > until:
+                deadline_hit = True
+                break
             if not fresh:
                 cost = p.build(u)
             fresh = False
-            step, flag = self._qp(p, relaxed)
-            if step is None and not relaxed and p.m_cbf > 0:
-                relaxed = True
-                step, flag = self._qp(p, relaxed)
+            best.offer(u, p.check_built(cost))
+            step, flag = self._qp(p, slack, until if it > 1 else None)  # the first QP always runs
+            if step is None and flag != DEADLINE and slack is None and p.m_cbf > 0:
+                if restarts < self.max_restarts:
+                    start, step, c_start, tried = self._recover(
+                        p, u, best, self.max_restarts - restarts, until_recovery
+                    )
+                    restarts += tried
+                    if step is not None:
+                        u, cost, recovered = start, c_start, True
+                if step is None:  # no hard-feasible start found: relax from the best point seen
+                    if best.u is not None:
+                        u = best.u.copy()
+                    cost = p.build(u)
+                    slack = self._slack_columns(p)
+                    step, flag = self._qp(p, slack, until)
+            if step is None and flag == DEADLINE:
+                deadline_hit = True
+                break
             if step is None:
                 message = f"DAQP exit flag {flag} at SQP iteration {it}"
-                return SolveResult(u, SolveStatus.FAILED, it, float("nan"), float("nan"), relaxed, message,
-                                   time.perf_counter() - t0)  # fmt: skip
+                break
             d = step.reshape(u.shape)
             alpha = 1.0
             if p.nonlinear:
                 viol0 = float(np.maximum(0.0, -p.g).sum())
-                mu = 10.0 * self.slack_penalty if relaxed else 1e4
+                mu = 10.0 * self.slack_penalty if slack is not None else 1e4
                 merit0 = cost + mu * viol0
                 for _ in range(8):
                     trial = np.clip(u + alpha * d, p.ulo, p.uhi)
@@ -156,24 +278,40 @@ class SqpSolver:
                 u, cost, fresh = trial, c1, True  # the last build was at this trial: reuse it
             else:
                 # the QP keeps u + d within the input bounds (to DAQP's tolerance)
-                u += alpha * d
+                u = u + alpha * d
             if alpha * float(np.abs(d).max()) < self.tol:
                 converged = True
                 break
-        cost, viol = _check(p, u)
-        if not math.isfinite(u.sum() + cost):
-            return SolveResult(u, SolveStatus.FAILED, it, cost, viol, relaxed, "non-finite iterate",
-                               time.perf_counter() - t0)  # fmt: skip
-        slack_used = viol > FEAS_TOL
-        if not converged:
+        # the final iterate, checked exactly
+        final = p.evaluate(u) if np.isfinite(u).all() else None
+        if final is not None:
+            best.offer(u, final)
+        elapsed = time.perf_counter() - t0
+        if best.u is None:  # nothing finite was ever evaluated
+            return SolveResult(u, SolveStatus.FAILED, it, math.nan, math.nan, True, message or "non-finite iterate",
+                               elapsed, math.nan, recovered, restarts, deadline_hit)  # fmt: skip
+        if converged and final is not None and (final.worst <= FEAS_TOL or slack is not None):
+            out_u, out = u, final  # the converged iterate itself
+        else:
+            out_u, out = best.u, best.check
+        out_fv, out_hv, out_cost = out.first_row, out.worst, out.cost
+        slack_used = out_hv > FEAS_TOL
+        if step is None and message.startswith("DAQP"):
+            status = SolveStatus.FAILED
+        elif not converged:
             status = SolveStatus.MAX_ITER
-            message = f"no convergence in {self.max_iter} SQP iterations"
+            why = f"deadline of {deadline * 1e3:.1f} ms" if deadline_hit else f"{self.max_iter} SQP iterations"
+            message = f"no convergence within {why}; best checked plan returned (violation {out_hv:.3g})"
         elif slack_used:
             status = SolveStatus.RELAXED
-            message = f"hard CBF rows infeasible; relaxed by up to {viol:.3g}"
+            message = (f"no hard-feasible plan found ({restarts} recovery starts tried); "
+                       f"CBF rows relaxed by up to {out_hv:.3g}")  # fmt: skip
         else:
             status = SolveStatus.OPTIMAL
-        return SolveResult(u, status, it, cost, viol, slack_used, message, time.perf_counter() - t0)
+            if recovered:
+                message = f"hard-feasible plan recovered after an infeasible linearisation ({restarts} starts tried)"
+        return SolveResult(out_u.copy(), status, it, out_cost, out_hv, slack_used, message, elapsed, out_fv,
+                           recovered, restarts, deadline_hit)  # fmt: skip
 
 
 class SlsqpSolver:
@@ -192,29 +330,31 @@ class SlsqpSolver:
         self.max_iter = max_iter
         self.per_row = per_row
 
-    def solve(self, problem: MpcProblem, u0: NDArray[np.float64]) -> SolveResult:
+    def solve(self, problem: MpcProblem, u0: NDArray[np.float64], deadline: float | None = None) -> SolveResult:
+        """One SLSQP run (``deadline`` is not enforced: scipy cannot be interrupted)."""
         t0 = time.perf_counter()
         p = problem
         bounds = list(zip(p.lo, p.hi, strict=True))
         if self.per_row:
-            n_rows = p.constraints_np(np.asarray(u0, dtype=float).reshape(-1)).size
-            cons = [{"type": "ineq", "fun": lambda u, r=r: p.constraints_np(u)[r]} for r in range(n_rows)]
+            n_rows = p.decision_rows_np(np.asarray(u0, dtype=float).reshape(-1)).size
+            cons = [{"type": "ineq", "fun": lambda u, r=r: p.decision_rows_np(u)[r]} for r in range(n_rows)]
         else:
-            cons = [{"type": "ineq", "fun": p.constraints_np}] if p.m > 0 else []
+            cons = [{"type": "ineq", "fun": p.decision_rows_np}] if p.m > p.n_decided else []
         x0 = np.clip(np.asarray(u0, dtype=float).reshape(-1), p.lo, p.hi)
         res = minimize(p.cost_np, x0, method="SLSQP", bounds=bounds, constraints=cons,
                        options={"ftol": self.ftol, "maxiter": self.max_iter})  # fmt: skip
         u = np.asarray(res.x).reshape(p.n_h, -1)
-        rows = p.constraints_np(u)[: p.m_cbf]
+        rows = p.constraints_np(u)[p.n_decided : p.m_cbf]
         viol = float(max(0.0, -rows.min())) if rows.size else 0.0
+        first = float(max(0.0, -rows[: p.n_p].min())) if rows.size else 0.0
         if res.status == 0 and viol <= FEAS_TOL:
             status = SolveStatus.OPTIMAL
         elif res.status == 9:
             status = SolveStatus.MAX_ITER
         else:
             status = SolveStatus.FAILED
-        return SolveResult(u, status, int(res.nit), float(res.fun), viol, False, str(res.message),
-                           time.perf_counter() - t0)  # fmt: skip
+        return SolveResult(u, status, int(res.nit), float(res.fun), viol, viol > FEAS_TOL, str(res.message),
+                           time.perf_counter() - t0, first)  # fmt: skip
 
 
 def make_solver(name: str) -> SqpSolver | SlsqpSolver:

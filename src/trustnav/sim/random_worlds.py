@@ -1,0 +1,301 @@
+"""Random closed-loop worlds for reliability studies of the controller (seeded, documented).
+
+Two families, each a pure function of (spec, seed):
+
+* single integrator (Section III's model): ego from the origin toward a goal 30-45 m away in a
+  random direction; 1-10 pedestrians near the straight path (static, wandering, crossing the
+  path, or walking toward the ego); in half of the episodes 1-3 more pedestrians stand at R + 0.1
+  within 45 deg ahead of the ego at t = 0 (the hard case: rows bind from the first step). Trusts
+  uniform in [0, 1]; N_h, the reference bound and the trust preset drawn from the spec's lists.
+* kinematic bicycle (Section IV's model): a straight road (0, 0) -> (100, 0), initial speed
+  4-10 m/s, 1-6 pedestrians near the lane (static on the kerb, on the lane edge, or crossing),
+  and in a third of the episodes a pedestrian that steps onto the lane ahead part-way through.
+
+:func:`run_world` runs one episode with :class:`~trustnav.control.MpcController` and returns a
+record; :func:`hard_feasible_exists` is the independent check used for relaxed steps.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import minimize
+
+from trustnav.control import (
+    BoundedProportionalReference,
+    KinematicBicycle,
+    LaneTrackingCost,
+    MpcConfig,
+    MpcController,
+    MpcProblem,
+    SingleIntegrator,
+    SolveStatus,
+    VelocityTrackingCost,
+)
+from trustnav.trust import PAPER_GAMMA_CARLA, PAPER_GAMMA_NUMERICAL
+
+__all__ = ["RandomWorld", "RandomWorldSpec", "hard_feasible_exists", "run_world", "sample_world"]
+
+Family = Literal["single_integrator", "bicycle"]
+
+
+@dataclass(frozen=True)
+class RandomWorldSpec:
+    """Distribution of random worlds (see the module docstring)."""
+
+    family: Family = "single_integrator"
+    horizons: tuple[int, ...] = (4, 7, 15)
+    v_max: tuple[float, ...] = (10.0, 18.0)
+    max_pedestrians: int = 10
+    close_start_share: float = 0.5  # share of episodes with pedestrians at R + 0.1 ahead at t = 0
+    max_steps: int = 600
+
+    def __post_init__(self) -> None:
+        if self.family not in ("single_integrator", "bicycle"):
+            raise ValueError(f"family must be 'single_integrator' or 'bicycle', got {self.family!r}")
+        if not self.horizons or any(not isinstance(h, int) or h < 1 for h in self.horizons):
+            raise ValueError(f"horizons must be integers >= 1, got {self.horizons!r}")
+        if not self.v_max or any(not v > 0 for v in self.v_max):
+            raise ValueError(f"v_max must be positive speeds, got {self.v_max!r}")
+        if not isinstance(self.max_pedestrians, int) or self.max_pedestrians < 1:
+            raise ValueError(f"max_pedestrians must be an integer >= 1, got {self.max_pedestrians!r}")
+        if not 0 <= self.close_start_share <= 1:
+            raise ValueError(f"close_start_share must lie in [0, 1], got {self.close_start_share!r}")
+        if not isinstance(self.max_steps, int) or self.max_steps < 1:
+            raise ValueError(f"max_steps must be an integer >= 1, got {self.max_steps!r}")
+
+
+@dataclass(frozen=True)
+class RandomWorld:
+    """One sampled world: ego start, goal, pedestrians (with an appearance step each), trusts."""
+
+    family: Family
+    seed: int
+    config: MpcConfig
+    start: NDArray[np.float64]  # ego state
+    goal: NDArray[np.float64]
+    pedestrians: NDArray[np.float64]  # (N, 2) initial positions
+    velocities: NDArray[np.float64]  # (N, 2)
+    trusts: NDArray[np.float64]  # (N,)
+    appear: NDArray[np.int64]  # (N,) step at which each pedestrian is first known to the controller
+    v_max: float
+    kinds: tuple[str, ...] = field(default=())
+    max_steps: int = 600
+
+
+def _si_world(spec: RandomWorldSpec, seed: int, rng: np.random.Generator) -> RandomWorld:
+    n_h = int(rng.choice(spec.horizons))
+    v_max = float(rng.choice(spec.v_max))
+    cfg = MpcConfig(horizon=n_h, dt=0.05, safety_radius=3.0, gamma=PAPER_GAMMA_NUMERICAL)
+    r = cfg.safety_radius
+    heading = rng.uniform(-math.pi, math.pi)
+    axis = np.array([math.cos(heading), math.sin(heading)])
+    normal = np.array([-axis[1], axis[0]])
+    length = rng.uniform(30.0, 45.0)
+    goal = axis * length
+    peds, vels, kinds = [], [], []
+    for _ in range(int(rng.integers(1, spec.max_pedestrians + 1))):
+        for _try in range(50):
+            s = rng.uniform(0.15, 0.9) * length
+            off = rng.normal(0.0, 4.0)
+            p = axis * s + normal * off
+            if np.linalg.norm(p) > r + 0.5 and np.linalg.norm(p - goal) > r + 0.5:
+                break
+        kind = str(rng.choice(["static", "wander", "crossing", "toward"], p=[0.4, 0.2, 0.25, 0.15]))
+        speed = rng.uniform(0.5, 2.0)
+        if kind == "static":
+            v = np.zeros(2)
+        elif kind == "wander":
+            a = rng.uniform(-math.pi, math.pi)
+            v = speed * np.array([math.cos(a), math.sin(a)])
+        elif kind == "crossing":
+            v = -np.sign(off or 1.0) * speed * normal
+        else:
+            v = -speed * axis
+        peds.append(p)
+        vels.append(v)
+        kinds.append(kind)
+    if rng.uniform() < spec.close_start_share:
+        for _ in range(int(rng.integers(1, 4))):
+            a = heading + rng.uniform(-math.pi / 4, math.pi / 4)
+            peds.append((r + 0.1) * np.array([math.cos(a), math.sin(a)]))
+            vels.append(np.zeros(2))
+            kinds.append("close")
+    n = len(peds)
+    return RandomWorld(
+        family="single_integrator", seed=seed, config=cfg, start=np.zeros(2), goal=goal,
+        pedestrians=np.array(peds), velocities=np.array(vels), trusts=rng.uniform(0, 1, n),
+        appear=np.zeros(n, dtype=np.int64), v_max=v_max, kinds=tuple(kinds), max_steps=spec.max_steps,
+    )  # fmt: skip
+
+
+def _bicycle_world(spec: RandomWorldSpec, seed: int, rng: np.random.Generator) -> RandomWorld:
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, gamma=PAPER_GAMMA_CARLA, latency=0.1)
+    v0 = rng.uniform(4.0, 10.0)
+    peds, vels, kinds, appear = [], [], [], []
+    for _ in range(int(rng.integers(1, min(6, spec.max_pedestrians) + 1))):
+        kind = str(rng.choice(["kerb", "edge", "crossing"], p=[0.5, 0.25, 0.25]))
+        x = rng.uniform(15.0, 85.0)
+        side = rng.choice([-1.0, 1.0])
+        if kind == "kerb":
+            p, v = np.array([x, side * rng.uniform(3.5, 6.0)]), np.zeros(2)
+        elif kind == "edge":
+            p, v = np.array([x, side * rng.uniform(2.0, 3.5)]), np.zeros(2)
+        else:
+            p, v = np.array([x, side * rng.uniform(4.0, 7.0)]), np.array([0.0, -side * rng.uniform(0.5, 1.5)])
+        peds.append(p)
+        vels.append(v)
+        kinds.append(kind)
+        appear.append(0)
+    if rng.uniform() < 1 / 3:  # a pedestrian steps out ahead part-way through (may be unavoidable)
+        step = int(rng.integers(10, 60))
+        peds.append(np.array([np.nan, rng.uniform(-1.5, 1.5)]))  # x set at appearance: ahead of the car
+        vels.append(np.zeros(2))
+        kinds.append(f"sudden@{rng.uniform(4.0, 15.0):.2f}")
+        appear.append(step)
+    n = len(peds)
+    return RandomWorld(
+        family="bicycle", seed=seed, config=cfg, start=np.array([0.0, 0.0, 0.0, v0]), goal=np.array([100.0, 0.0]),
+        pedestrians=np.array(peds), velocities=np.array(vels), trusts=rng.uniform(0, 1, n),
+        appear=np.array(appear, dtype=np.int64), v_max=8.0, kinds=tuple(kinds), max_steps=min(spec.max_steps, 400),
+    )  # fmt: skip
+
+
+def sample_world(spec: RandomWorldSpec, seed: int) -> RandomWorld:
+    """The world of ``seed`` under ``spec`` (same seed, same world)."""
+    rng = np.random.default_rng(seed)
+    return _si_world(spec, seed, rng) if spec.family == "single_integrator" else _bicycle_world(spec, seed, rng)
+
+
+def _controller(world: RandomWorld) -> tuple[MpcController, Any]:
+    if world.family == "single_integrator":
+        model = SingleIntegrator()
+        cost = VelocityTrackingCost(goal=tuple(world.goal), reference=BoundedProportionalReference(1.5, world.v_max))
+    else:
+        model = KinematicBicycle()
+        cost = LaneTrackingCost(start=(0.0, 0.0), goal=tuple(world.goal),
+                                reference=BoundedProportionalReference(0.5, world.v_max))  # fmt: skip
+    return MpcController(model, cost, world.config), model
+
+
+def hard_feasible_exists(problem: MpcProblem, plans: list[NDArray[np.float64]], seed: int = 0) -> bool:
+    """Independent check: does a plan meet every hard row of the problem's current stage?
+
+    Multi-start scipy SLSQP on the plain numpy constraints (finite differences; none of the SQP
+    code path): minimise the distance to each start subject to all rows, from the given plans,
+    braking, and two random starts. True as soon as one result meets every row within 1e-6.
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = problem.lo, problem.hi
+    starts = [np.asarray(u, dtype=float).ravel() for u in plans]
+    starts += [problem.braking_plan().ravel()]
+    starts += [rng.uniform(lo, hi) for _ in range(2)]
+    bounds = list(zip(lo, hi, strict=True))
+    rows = problem.decision_rows_np
+    cons = [{"type": "ineq", "fun": rows}]
+    for x0 in starts:
+        x0 = np.clip(x0, lo, hi)
+        if rows(x0).min() >= -1e-6:
+            return True
+        res = minimize(lambda u, a=x0: float(np.sum((u - a) ** 2)), x0, method="SLSQP", bounds=bounds,
+                       constraints=cons, options={"maxiter": 60, "ftol": 1e-9})  # fmt: skip
+        if np.all(np.isfinite(res.x)) and rows(res.x).min() >= -1e-6:
+            return True
+    return False
+
+
+def _plant(
+    model: Any, x: NDArray[np.float64], applied: NDArray[np.float64], new: NDArray[np.float64], cfg: MpcConfig
+) -> NDArray[np.float64]:
+    """One control period of the plant: the input being executed for the first ``latency``
+    seconds (actuation delay, at most one period), then the new one; integrated in 10 ms steps."""
+    lat = min(cfg.latency, cfg.dt)
+    n = max(1, round(cfg.dt / 0.01))
+    h = cfg.dt / n
+    for i in range(n):
+        x = model.step(x, applied if i * h < lat - 1e-12 else new, h)
+    return x
+
+
+def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: bool = False) -> dict[str, Any]:
+    """Closed loop on one world; the record a reliability study needs.
+
+    Pedestrians move at constant velocity; a pedestrian is given to the controller from its
+    appearance step on (a 'sudden' one appears at the distance in its kind ahead of the car).
+    With ``check_relaxed`` every step whose plan violates a CBF row is re-checked with
+    :func:`hard_feasible_exists` on the same stage.
+    """
+    ctl, model = _controller(world)
+    cfg = world.config
+    x = world.start.astype(float).copy()
+    peds = world.pedestrians.copy()
+    r = cfg.safety_radius
+    min_dist = math.inf
+    times, cpu, statuses = [], [], {}
+    relaxed = fallback = recovered = deadline = 0
+    relaxed_feasible = relaxed_checked = 0
+    reached = False
+    steps = 0
+    applied = np.zeros(model.nu)  # the input being executed when a new one is issued
+    for t in range(world.max_steps):
+        for j in np.flatnonzero(world.appear == t):
+            if t > 0 and world.kinds[j].startswith("sudden@"):
+                peds[j, 0] = x[0] + float(world.kinds[j].split("@")[1])
+        known = world.appear <= t
+        t0, c0 = time.perf_counter(), time.thread_time()
+        sol = ctl.step(x, peds[known], world.velocities[known], world.trusts[known])
+        times.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+        statuses[sol.status.value] = statuses.get(sol.status.value, 0) + 1
+        relaxed += sol.slack_used
+        fallback += sol.fallback
+        recovered += sol.recovered
+        deadline += sol.deadline_hit
+        if check_relaxed and sol.slack_used:
+            relaxed_checked += 1
+            relaxed_feasible += hard_feasible_exists(ctl.problem, [sol.inputs], seed=world.seed * 1000 + t)
+        x = _plant(model, x, applied, sol.control, cfg)
+        applied = sol.control
+        peds = peds + world.velocities * cfg.dt
+        steps = t + 1
+        if known.any():
+            d = np.linalg.norm(peds[known] - x[:2], axis=1)
+            min_dist = min(min_dist, float(d.min()))
+        if np.linalg.norm(x[:2] - world.goal) <= (0.25 if world.family == "single_integrator" else 1.0):
+            reached = True
+            break
+    st = np.array(times) * 1e3  # wall clock (what a real-time loop sees, preemption included)
+    ct = np.array(cpu) * 1e3  # CPU time of the stepping thread
+    return {
+        "family": world.family,
+        "seed": world.seed,
+        "n_p": len(world.pedestrians),
+        "horizon": cfg.horizon,
+        "v_max": world.v_max,
+        "kinds": list(world.kinds),
+        "steps": steps,
+        "reached_goal": reached,
+        "min_distance": min_dist,
+        "breach": bool(min_dist < r - 1e-6),
+        "relaxed_steps": int(relaxed),
+        "relaxed_checked": int(relaxed_checked),
+        "relaxed_but_feasible": int(relaxed_feasible),
+        "fallback_steps": int(fallback),
+        "recovered_steps": int(recovered),
+        "deadline_steps": int(deadline),
+        "failed_steps": int(statuses.get(SolveStatus.FAILED.value, 0)),
+        "statuses": statuses,
+        "step_ms": st.tolist() if keep_step_times else None,
+        "step_ms_median": float(np.median(st)),
+        "step_ms_p99": float(np.percentile(st, 99)),
+        "step_ms_max": float(st.max()),
+        "step_ms_sum": float(st.sum()),
+        "step_cpu_ms": ct.tolist() if keep_step_times else None,
+        "step_cpu_ms_max": float(ct.max()),
+        "final_speed": float(x[3]) if world.family == "bicycle" else None,
+    }
