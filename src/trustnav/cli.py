@@ -116,10 +116,121 @@ def _estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _drive_runs(
+    case: str,
+    sensing: str,
+    attentive: bool | None,
+    seed: int,
+    rate: float | None,
+    out: Path,
+    video: bool = True,
+    control_rate: float | None = None,
+) -> list[tuple[str, dict, Path]]:
+    """Run a driving case (Case II: both variants unless one is asked for) and write its outputs."""
+    from tqdm import tqdm
+
+    from trustnav.sim.driving import load_drive_scenario, make_render_sensing, run_drive
+    from trustnav.viz.drive_plots import plot_distance, plot_top_view, write_drive_outputs
+
+    sc = load_drive_scenario(case)
+    if attentive is not None:
+        variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
+    elif sc.variants:
+        variants = [(v, v == "attentive") for v in sc.variants]
+    else:
+        variants = [("", None)]
+    done, results = [], []
+    for tag, att in variants:
+        where = out / tag if len(variants) > 1 else out
+        renderer = pipeline = None
+        if sensing == "render":
+            renderer, pipeline = make_render_sensing(sc, rate)
+        desc = f"{case}{' ' + tag if tag else ''} ({sensing})"
+        try:
+            with tqdm(total=sc.duration, desc=desc, unit="s", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim "
+                      "[{elapsed}]") as bar:  # fmt: skip
+                result = run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
+                                   control_rate=control_rate, renderer=renderer, pipeline=pipeline,
+                                   progress=lambda t, _d, bar=bar: bar.update(t - bar.n))  # fmt: skip
+                bar.total = bar.n
+                bar.refresh()
+        finally:
+            if renderer is not None:
+                renderer.close()
+            if pipeline is not None and hasattr(pipeline.backend, "close"):
+                pipeline.backend.close()
+        metrics = result.metrics()
+        where.mkdir(parents=True, exist_ok=True)
+        write_drive_outputs(result, where, video=video)
+        (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        done.append((tag or case, metrics, where))
+        results.append(result)
+    if len(results) > 1:
+        plot_distance(results, out / "distance.png")
+        plot_top_view(results, out / "top_view.png", title=f"{sc.title} [{sensing} sensing]")
+        (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
+    return done
+
+
+def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
+    for tag, m, where in done:
+        ttg = "not reached" if m["time_to_goal"] is None else f"{m['time_to_goal']:.1f} s"
+        extra = f"  detection recall {m['detection_recall']:.2f}" if m.get("detection_recall") is not None else ""
+        print(f"  {tag}: goal {ttg}  margin violations {m['margin_violations']}  relaxed steps "
+              f"{m['relaxed_steps']}  fallback steps {m['fallback_steps']}  solve {m['solve_ms_median']:.2f} ms "
+              f"(p95 {m['solve_ms_p95']:.2f}){extra}  -> {where}")  # fmt: skip
+        for p in m["pedestrians"]:
+            kind = "attentive" if p["attentive"] else "distracted"
+            print(f"      {p['name']:<11} ({kind:<10}) min distance {p['min_distance']:.2f} m  "
+                  f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}")  # fmt: skip
+
+
+def _drive(args: argparse.Namespace) -> int:
+    from trustnav.sim.driving import DRIVE_SCENARIOS
+
+    if args.case not in DRIVE_SCENARIOS:
+        raise ValueError(f"unknown case {args.case!r}: expected one of {', '.join(DRIVE_SCENARIOS)}")
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"--rate must be a positive number of frames per second, got {args.rate}")
+    if args.control_rate is not None and not args.control_rate > 0:
+        raise ValueError(f"--control-rate must be a positive number of steps per second, got {args.control_rate}")
+    out = Path(args.out or f"out/{args.case}")
+    done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, out, video=not args.no_video,
+                       control_rate=args.control_rate)  # fmt: skip
+    files = "top_view.png, trust.png, distance.png, drive.mp4, frames/, metrics.json"
+    if args.no_video:
+        files = files.replace("drive.mp4, ", "")
+    if len(done) > 1:
+        runs = ", ".join(f"{tag}/" for tag, _, _ in done)
+        files = f"top_view.png, distance.png, metrics.json comparing the runs; per run in {runs}: {files}"
+    print(f"drive {args.case} ({args.sensing} sensing): wrote {out}/ ({files})")
+    _drive_summary(done, out)
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    import time
+
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    done = _drive_runs("case-1", "render", None, args.seed, None, out)
+    print(f"demo (paper Case I, camera -> perception -> trust -> MPC, {time.perf_counter() - t0:.0f} s): wrote")
+    for name in ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames/", "metrics.json"):
+        print(f"  {out / name}")
+    _drive_summary(done, out)
+    return 0
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (exit code 2, no usage dump)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="trustnav", description="Trust-aware safe navigation (MPC-CBF with pedestrian trust)."
-    )
+    p = _Parser(prog="trustnav", description="Trust-aware safe navigation (MPC-CBF with pedestrian trust).")
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser(
         "scenario", help="run one of the paper's numerical scenarios and write its figure + metrics.json"
@@ -148,6 +259,28 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-images", action="store_true", help="write only tracks.csv/json")
     e.add_argument("--mp4", action="store_true", help="write annotated.mp4 also for image inputs (not PNG frames)")
     e.set_defaults(func=_estimate)
+    d = sub.add_parser(
+        "drive",
+        help="end-to-end trust-aware driving (paper Section IV, Cases I and II): figures, MP4, metrics.json",
+    )
+    d.add_argument("case", help="case-1 (attentive + distracted standing) or case-2 (one walking pedestrian)")
+    d.add_argument("--sensing", choices=["render", "keypoints"], default="render",
+                   help="render: rendered frames + perception (default); keypoints: projected joints")  # fmt: skip
+    g = d.add_mutually_exclusive_group()
+    g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
+                   help="every pedestrian attentive")  # fmt: skip
+    g.add_argument("--distracted", dest="attentive", action="store_const", const=False,
+                   help="every pedestrian distracted")  # fmt: skip
+    d.add_argument("--seed", type=int, default=0, help="seed of sensing noise (default 0)")
+    d.add_argument("--rate", type=float, help="camera frames per second = trust-estimation rate (default: scenario, 1)")
+    d.add_argument("--control-rate", type=float, help="controller steps per second (default: scenario, 20)")
+    d.add_argument("--out", help="output directory (default out/<case>)")
+    d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
+    d.set_defaults(func=_drive)
+    m = sub.add_parser("demo", help="paper Case I end to end in render mode; prints where the outputs are")
+    m.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    m.add_argument("--seed", type=int, default=0)
+    m.set_defaults(func=_demo)
     return p
 
 

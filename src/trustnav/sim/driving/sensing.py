@@ -1,0 +1,327 @@
+"""The car's camera and its two sensing modes, feeding the paper's trust estimator.
+
+Both modes end in the same trait models and estimator: LOOKING eye contact (C_eye, `eye_score`),
+the pose-geometry phone classifier (C_sm, `smato_score`), pose fluctuation (C_fluc, `pose_conf`)
+and `lin_comb` / `agg_trust` in :class:`trustnav.trust.TrustEstimator`.
+
+* ``render``: the frame is rendered (``render.PyBulletRenderer``) and ``trustnav.perception`` runs
+  on it (detection, landmarks, tracking, traits). Perception tracks are associated with the world's
+  pedestrians by overlap (IoU) with each pedestrian's projected box; the observation of a track
+  updates the trust memory of the pedestrian it is associated with.
+* ``keypoints``: the 3-D joints are projected; joints outside the image or behind the camera are
+  culled; pixel noise scaled to the person's image height, random dropout, and confidences that
+  fall for the joints the body hides (the far eye and ear of a profile, the face of a bowed head,
+  the far side of the body) stand in for detection and landmarks; everything after is the same.
+
+A pedestrian not observed in a frame gets no trust update (its last trust stays); one never
+observed has trust 0 (gamma = gamma_ini, the safe default).
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from trustnav.perception.confidence import HeadConfidenceParams
+from trustnav.perception.looking import LookingModel, normalise_keypoints
+from trustnav.perception.phone import PoseGeometryPhoneClassifier
+from trustnav.perception.types import Person, box_iou
+from trustnav.sim.driving.body import Appearance, Skeleton
+from trustnav.sim.driving.camera import NEAR, CameraPose
+from trustnav.sim.driving.world import SensingSpec, street_of
+from trustnav.trust import PAPER_TRUST, Observation, TrustEstimator, TrustParams
+
+__all__ = [
+    "SENSING_MODES",
+    "FrameReport",
+    "KeypointSensor",
+    "PedestrianView",
+    "RenderSensor",
+    "SensedPerson",
+    "TrustTracker",
+    "make_render_sensing",
+    "projected_box",
+]
+
+SENSING_MODES = ("keypoints", "render")
+Mode = Literal["keypoints", "render"]
+
+# head-frame directions of the face keypoints' surface normals (nose, eyes, ears), as in
+# perception/confidence.py
+_FACE_PHI = np.radians([0.0, 35.0, -35.0, 90.0, -90.0])
+_HEAD = HeadConfidenceParams()
+_LEFT = np.array([5, 7, 9, 11, 13, 15])
+_RIGHT = np.array([6, 8, 10, 12, 14, 16])
+
+
+@dataclass(frozen=True)
+class SensedPerson:
+    """One person perceived in a frame, associated with world pedestrian ``index``."""
+
+    index: int
+    track_id: int
+    person: Person
+    eye_contact: float
+    phone: float
+
+
+@dataclass
+class PedestrianView:
+    """Ground truth and what was perceived of one pedestrian in one frame."""
+
+    index: int
+    in_view: bool  # enough of the body inside the image to be detectable (ground truth)
+    box: NDArray[np.float64] | None  # projected ground-truth box [x1, y1, x2, y2] (px), None if not in view
+    observed: bool = False  # perceived and associated: its trust was updated by this frame
+    track_id: int | None = None
+    eye_contact: float | None = None
+    phone: float | None = None
+    trust: float | None = None  # after this frame; None: never observed yet
+
+
+@dataclass
+class FrameReport:
+    """One captured frame: time, the pedestrians' views, unmatched detections, timing, image."""
+
+    index: int
+    time: float
+    views: list[PedestrianView]
+    false_positives: int = 0
+    timing: dict[str, float] = field(default_factory=dict)
+    camera: CameraPose | None = field(default=None, repr=False)
+    sensed: list[SensedPerson] = field(default_factory=list, repr=False)
+    image: NDArray[np.uint8] | None = field(default=None, repr=False)  # the rendered frame (RGB), render mode
+
+    @property
+    def detections(self) -> int:
+        return sum(v.observed for v in self.views)
+
+    @property
+    def ground_truth(self) -> int:
+        return sum(v.in_view for v in self.views)
+
+
+def projected_box(camera: CameraPose, skeleton: Skeleton, pad: float = 0.04) -> NDArray[np.float64] | None:
+    """The box of a body's projected points (joints, head top, hands, feet, phone) clipped to the
+    image and padded by ``pad`` of its height; None if no point is in front of the camera or the
+    box misses the image."""
+    uv, depth = camera.project(skeleton.points())
+    ok = depth > NEAR
+    if not ok.any():
+        return None
+    uv = uv[ok]
+    x1, y1 = uv.min(axis=0)
+    x2, y2 = uv.max(axis=0)
+    p = pad * (y2 - y1)
+    w, h = camera.spec.width, camera.spec.height
+    box = np.array([max(0.0, x1 - p), max(0.0, y1 - p), min(w - 1.0, x2 + p), min(h - 1.0, y2 + p)])
+    if box[2] <= box[0] or box[3] <= box[1]:
+        return None
+    return box
+
+
+def _visible_joints(camera: CameraPose, skeleton: Skeleton) -> tuple[NDArray, NDArray]:
+    uv, depth = camera.project(skeleton.joints)
+    w, h = camera.spec.width, camera.spec.height
+    with np.errstate(invalid="ignore"):
+        inside = (depth > NEAR) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    return uv, inside
+
+
+def in_view(camera: CameraPose, skeleton: Skeleton, spec: SensingSpec) -> bool:
+    """Ground truth: enough joints inside the image and the body tall enough to be detected."""
+    _, inside = _visible_joints(camera, skeleton)
+    box = projected_box(camera, skeleton)
+    return bool(inside.sum() >= spec.min_joints and box is not None and box[3] - box[1] >= spec.min_height_px)
+
+
+def hidden_joint_confidences(
+    camera: CameraPose, skeleton: Skeleton, head: HeadConfidenceParams = _HEAD
+) -> NDArray[np.float64]:
+    """(17,) confidences from how far each keypoint faces the camera (1 = fully shown).
+
+    Face keypoints as perception/confidence.py does for BlazePose, with the head's 3-D rotation
+    (so a bowed head hides its face too): c = clip(base + gain * cos(normal, to camera), floor, 1).
+    Body keypoints: the far side of a body seen in profile or from behind is partly hidden,
+    c = clip(0.8 + 0.2 * cos(side normal, to camera), 0.3, 1).
+    """
+    conf = np.ones(17)
+    cam = camera.position
+    if skeleton.head_rot is not None and skeleton.head_centre is not None:
+        to_cam = cam - skeleton.head_centre
+        to_cam /= np.linalg.norm(to_cam)
+        r = skeleton.head_rot
+        normals = np.cos(_FACE_PHI)[:, None] * r[:, 0] + np.sin(_FACE_PHI)[:, None] * r[:, 1]
+        facing = normals @ to_cam
+        base = np.array([head.face_base] * 3 + [head.ear_base] * 2)
+        gain = np.array([head.face_gain] * 3 + [head.ear_gain] * 2)
+        conf[:5] = np.clip(base + gain * facing, head.floor, 1.0)
+    if skeleton.body_rot is not None and skeleton.pelvis is not None:
+        to_cam = cam - skeleton.pelvis
+        to_cam /= np.linalg.norm(to_cam)
+        side = float(skeleton.body_rot[:, 1] @ to_cam)  # > 0: the left side faces the camera
+        conf[_LEFT] = np.clip(0.8 + 0.2 * side, 0.3, 1.0)
+        conf[_RIGHT] = np.clip(0.8 - 0.2 * side, 0.3, 1.0)
+    return conf
+
+
+def looking_model() -> LookingModel:
+    """The LOOKING eye-contact weights found locally (../shared/models, $TRUSTNAV_LOOKING_WEIGHTS or the
+    user cache); never downloaded during a drive."""
+    try:
+        return LookingModel.from_file(download=False)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{exc} (`trustnav estimate` fetches them once; or set TRUSTNAV_LOOKING_WEIGHTS)") from exc
+
+
+class KeypointSensor:
+    """Keypoint sensing: projected joints with noise, dropout and hidden-joint confidences, then the
+    same trait models as the perception pipeline (LOOKING, phone classifier). Track IDs are the
+    pedestrians' indices (detection, landmarks and tracking are what this mode skips)."""
+
+    mode: Mode = "keypoints"
+
+    def __init__(
+        self,
+        spec: SensingSpec,
+        rng: np.random.Generator,
+        eye_model: LookingModel | None = None,
+        phone: PoseGeometryPhoneClassifier | None = None,
+    ) -> None:
+        self.spec = spec
+        self.rng = rng
+        self.eye_model = eye_model or looking_model()
+        self.phone = phone or PoseGeometryPhoneClassifier()
+
+    def person(self, camera: CameraPose, skeleton: Skeleton) -> Person | None:
+        """The synthetic detection of one body, or None when it is not detectable or missed."""
+        s = self.spec
+        if not in_view(camera, skeleton, s):
+            return None
+        if s.miss_rate > 0 and self.rng.random() < s.miss_rate:
+            return None
+        box = projected_box(camera, skeleton)
+        assert box is not None
+        uv, inside = _visible_joints(camera, skeleton)
+        sigma = s.pixel_noise * (box[3] - box[1])
+        noise = self.rng.normal(0.0, 1.0, size=(17, 2)) * sigma
+        drop = self.rng.random(17) < s.dropout
+        jitter = self.rng.uniform(0.9, 1.0, size=17)
+        w, h = camera.spec.width, camera.spec.height
+        kp = np.where(np.isfinite(uv), uv, 0.0) + noise
+        kp[:, 0] = np.clip(kp[:, 0], 0.0, w - 1.0)
+        kp[:, 1] = np.clip(kp[:, 1], 0.0, h - 1.0)
+        conf = hidden_joint_confidences(camera, skeleton) * jitter
+        conf[drop] = 0.05
+        conf[~inside] = 0.0
+        return Person(bbox=box, keypoints=kp, confidences=np.clip(conf, 0.0, 1.0), score=0.9)
+
+    def sense(
+        self, camera: CameraPose, bodies: Sequence[tuple[Skeleton, Appearance]]
+    ) -> tuple[list[SensedPerson], NDArray[np.uint8] | None, int, dict[str, float]]:
+        t0 = _time.perf_counter()
+        found = []
+        for j, (sk, _) in enumerate(bodies):
+            p = self.person(camera, sk)
+            if p is not None:
+                found.append((j, p))
+        out = []
+        if found:
+            w = camera.spec.width
+            inputs = np.stack([normalise_keypoints(p.keypoints, p.confidences, w) for _, p in found])
+            eye = self.eye_model.predict(inputs)
+            for (j, p), e in zip(found, eye, strict=True):
+                out.append(SensedPerson(j, j, p, float(e), float(self.phone(None, p))))
+        return out, None, 0, {"keypoints": _time.perf_counter() - t0}
+
+
+class RenderSensor:
+    """Render sensing: renderer -> perception pipeline -> association with the world by box overlap."""
+
+    mode: Mode = "render"
+
+    def __init__(self, renderer: Any, pipeline: Any, min_iou: float = 0.2) -> None:
+        self.renderer = renderer
+        self.pipeline = pipeline
+        self.min_iou = min_iou
+
+    def sense(
+        self, camera: CameraPose, bodies: Sequence[tuple[Skeleton, Appearance]]
+    ) -> tuple[list[SensedPerson], NDArray[np.uint8] | None, int, dict[str, float]]:
+        from scipy.optimize import linear_sum_assignment
+
+        t0 = _time.perf_counter()
+        frame = self.renderer.render(camera, list(bodies))
+        t1 = _time.perf_counter()
+        people = self.pipeline(frame)
+        t2 = _time.perf_counter()
+        boxes = [projected_box(camera, sk) for sk, _ in bodies]
+        out: list[SensedPerson] = []
+        matched = 0
+        if people:
+            iou = np.array([[0.0 if b is None else box_iou(tp.person.bbox, b) for b in boxes] for tp in people])
+            rows, cols = linear_sum_assignment(-iou)
+            for r, c in zip(rows, cols, strict=True):
+                if iou[r, c] >= self.min_iou:
+                    tp = people[r]
+                    out.append(SensedPerson(int(c), tp.track_id, tp.person, tp.eye_contact, tp.phone))
+                    matched += 1
+        timing = {"render": t1 - t0, "perception": t2 - t1}
+        return out, frame, len(people) - matched, timing
+
+
+class TrustTracker:
+    """The trust memory of the world's pedestrians (`lin_comb`, `agg_trust` in TrustEstimator),
+    keyed by pedestrian index and updated only from what perception observed."""
+
+    def __init__(self, n: int, params: TrustParams = PAPER_TRUST, keep_time: float = math.inf) -> None:
+        self.n = n
+        self.estimator = TrustEstimator(params, keep_time=keep_time)
+        self.observations = np.zeros(n, dtype=int)
+
+    def update(self, sensed: Sequence[SensedPerson], time: float) -> None:
+        obs = [
+            Observation(
+                track_id=s.index,
+                time=time,
+                c_smartphone=s.phone,
+                c_eye=s.eye_contact,
+                keypoints=s.person.keypoints,
+                bbox=s.person.bbox,
+            )
+            for s in sensed
+        ]
+        self.estimator.update(obs, time=time)
+        for s in sensed:
+            self.observations[s.index] += 1
+
+    def trusts(self) -> NDArray[np.float64]:
+        """(N,) trusts for the controller; 0 (gamma_ini) for a pedestrian never observed."""
+        return self.estimator.trusts(np.arange(self.n), default=0.0)
+
+    def trust(self, index: int) -> float | None:
+        return self.estimator.trust(index)
+
+
+def make_render_sensing(scenario: Any, capture_rate: float | None = None) -> tuple[Any, Any]:
+    """(renderer, perception pipeline) for render sensing: PyBullet's CPU renderer of the scenario's
+    street and trustnav.perception (MediaPipe BlazePose, OC-SORT tracking at the capture rate,
+    LOOKING, the phone classifier). BlazePose's video mode (following people from their landmarks
+    between detections) only from 5 frames/s: at 1 frame/s a car moves metres between frames and
+    the follower left a stray box where a person had been. Close the renderer and the backend when done."""
+    from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
+    from trustnav.perception.pipeline import PerceptionPipeline
+    from trustnav.perception.tracking import PersonTracker
+    from trustnav.sim.driving.render import PyBulletRenderer
+
+    fps = float(capture_rate or scenario.camera.rate)
+    renderer = PyBulletRenderer(street_of(scenario))
+    backend = MediaPipePoseBackend(video=fps >= 5.0)
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
+    return renderer, pipeline

@@ -1,0 +1,441 @@
+"""The driving world of the paper's Section IV (Cases I and II) as data: road, ego vehicle, camera,
+pedestrians, controller and sensing parameters, loaded from TOML (``sim/scenarios/case-*.toml``);
+plus the world's mechanics: the ego plant (kinematic bicycle with actuation latency, integrated
+finer than the controller step) and the pedestrians (constant velocity, posed 3-D bodies).
+
+Coordinates are the paper's map coordinates (CARLA Town map): metres, x/y on the ground, z up,
+yaw in radians counter-clockwise from +x. Case I drives from (33.5, 129) to (33.5, 75), heading
+-pi/2.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections import deque
+from dataclasses import dataclass, field, fields, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from trustnav.control import BoundedProportionalReference, KinematicBicycle, LaneTrackingCost, MpcConfig
+from trustnav.sim.driving import body
+from trustnav.sim.driving.camera import CameraSpec
+from trustnav.sim.driving.render import StreetSpec
+from trustnav.trust import PAPER_GAMMA_CARLA, GammaParams
+
+__all__ = [
+    "DRIVE_SCENARIOS",
+    "ControlSpec",
+    "DriveScenario",
+    "PedestrianSpec",
+    "RoadSpec",
+    "SensingSpec",
+    "VehiclePlant",
+    "VehicleSpec",
+    "load_drive_scenario",
+    "pedestrian_states",
+    "street_of",
+]
+
+DRIVE_SCENARIOS = ("case-1", "case-2")
+
+
+def _pair(name: str, v: Any) -> tuple[float, float]:
+    try:
+        out = tuple(float(x) for x in v)
+    except TypeError:
+        raise ValueError(f"{name} must be two numbers, got {v!r}") from None
+    if len(out) != 2 or not all(math.isfinite(x) for x in out):
+        raise ValueError(f"{name} must be two finite numbers, got {v!r}")
+    return out  # type: ignore[return-value]
+
+
+def _positive(name: str, v: float, *, allow_zero: bool = False, allow_inf: bool = False) -> None:
+    ok = (v >= 0 if allow_zero else v > 0) and (allow_inf or math.isfinite(v))
+    if not isinstance(v, (int, float)) or not ok:
+        raise ValueError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class RoadSpec:
+    """A straight road: its centre line from ``start`` to ``end``, lane and sidewalk widths."""
+
+    start: tuple[float, float] = (33.5, 140.0)
+    end: tuple[float, float] = (33.5, 60.0)
+    lane_width: float = 3.5
+    lanes: int = 2
+    sidewalk_width: float = 3.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", _pair("road start", self.start))
+        object.__setattr__(self, "end", _pair("road end", self.end))
+        if self.start == self.end:
+            raise ValueError("road start and end must differ")
+        _positive("lane_width", self.lane_width)
+        _positive("sidewalk_width", self.sidewalk_width, allow_zero=True)
+        if not isinstance(self.lanes, int) or self.lanes < 1:
+            raise ValueError(f"lanes must be an integer >= 1, got {self.lanes!r}")
+
+    @property
+    def width(self) -> float:
+        return self.lane_width * self.lanes
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    """Ego plant: kinematic bicycle (wheelbase, steer and acceleration limits), actuation latency
+    (s; the paper's 100 ms) and the integration sub-step (s), finer than the control period."""
+
+    wheelbase: float = 2.9
+    steer_max_deg: float = 35.0
+    accel_min: float = -6.0
+    accel_max: float = 3.0
+    speed_max: float = 15.0
+    latency: float = 0.1
+    substep: float = 0.005
+
+    def __post_init__(self) -> None:
+        _positive("wheelbase", self.wheelbase)
+        if not 0 < self.steer_max_deg < 90:
+            raise ValueError(f"steer_max_deg must be in (0, 90), got {self.steer_max_deg!r}")
+        if not self.accel_min < 0 < self.accel_max:
+            raise ValueError(f"need accel_min < 0 < accel_max, got {self.accel_min!r}, {self.accel_max!r}")
+        _positive("speed_max", self.speed_max)
+        _positive("latency", self.latency, allow_zero=True)
+        _positive("substep", self.substep)
+
+    def model(self) -> KinematicBicycle:
+        """The controller's model of this vehicle (same limits)."""
+        return KinematicBicycle(
+            wheelbase=self.wheelbase,
+            steer_max=math.radians(self.steer_max_deg),
+            accel_min=self.accel_min,
+            accel_max=self.accel_max,
+            speed_max=self.speed_max,
+        )
+
+
+@dataclass(frozen=True)
+class ControlSpec:
+    """Controller: rate (Hz), MPC step dt and horizon N_h, margin R, gamma(trust) of `weight`,
+    latency compensation (s), CBF timing and the bounded proportional reference (gain, v_max).
+    ``deadline``: the controller's wall-clock budget per step (s); large by default so that an
+    episode does not depend on the machine's speed (simulated time is not wall time)."""
+
+    rate: float = 20.0
+    dt: float = 0.08
+    horizon: int = 7
+    safety_radius: float = 2.5
+    gamma: GammaParams = field(default_factory=lambda: PAPER_GAMMA_CARLA)
+    latency: float = 0.1
+    timing: str = "paper"
+    reference_gain: float = 1.0
+    reference_v_max: float = 8.0
+    deadline: float = 10.0
+
+    def __post_init__(self) -> None:
+        _positive("control rate", self.rate)
+        self.config()  # validates dt, horizon, R, timing, latency
+        BoundedProportionalReference(self.reference_gain, self.reference_v_max)
+
+    def config(self) -> MpcConfig:
+        extra = {"deadline": self.deadline} if "deadline" in MpcConfig.__dataclass_fields__ else {}
+        return MpcConfig(
+            horizon=self.horizon,
+            dt=self.dt,
+            safety_radius=self.safety_radius,
+            gamma=self.gamma,
+            timing=self.timing,  # type: ignore[arg-type]
+            latency=self.latency,
+            **extra,
+        )
+
+    def cost(self, start: tuple[float, float], goal: tuple[float, float]) -> LaneTrackingCost:
+        ref = BoundedProportionalReference(self.reference_gain, self.reference_v_max)
+        return LaneTrackingCost(start=start, goal=goal, reference=ref)
+
+
+@dataclass(frozen=True)
+class SensingSpec:
+    """How the car senses pedestrians.
+
+    Controller inputs (from the world, as in the authors' code): ``position_noise`` and
+    ``velocity_noise`` (m, m/s, Gaussian sigma). Keypoint sensing: ``pixel_noise`` (sigma as a
+    share of the person's image height), ``dropout`` (probability that a visible joint is missed),
+    ``miss_rate`` (probability that a visible person is not detected in a frame), ``min_joints``
+    (joints inside the image needed to detect a person), ``min_height_px``. Trust memory:
+    ``keep_time`` (s; inf keeps the last trust of a pedestrian who left the view, as the paper).
+    """
+
+    position_noise: float = 0.0
+    velocity_noise: float = 0.0
+    pixel_noise: float = 0.01
+    dropout: float = 0.03
+    miss_rate: float = 0.0
+    min_joints: int = 9
+    min_height_px: float = 24.0
+    keep_time: float = math.inf
+
+    def __post_init__(self) -> None:
+        for name in ("position_noise", "velocity_noise", "pixel_noise", "min_height_px"):
+            _positive(name, getattr(self, name), allow_zero=True)
+        _positive("keep_time", self.keep_time, allow_zero=True, allow_inf=True)
+        for name in ("dropout", "miss_rate"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
+        if not isinstance(self.min_joints, int) or not 1 <= self.min_joints <= 17:
+            raise ValueError(f"min_joints must be an integer in [1, 17], got {self.min_joints!r}")
+
+
+@dataclass(frozen=True)
+class PedestrianSpec:
+    """One pedestrian: where (m), how fast (m/s), ground truth ``attentive``, and how the body is
+    posed and dressed (``pose`` one of body.POSES, ``body_yaw_deg`` where the chest faces,
+    ``look_at_camera`` turns the head to the car, ``phase`` and ``sway`` of the body's sway,
+    ``appearance`` a preset name of body.py (attentive, distracted, walker) or colours).
+    ``alternative`` holds the overrides that make the other behaviour (Case II runs the same
+    pedestrian attentive and distracted)."""
+
+    name: str
+    position: tuple[float, float]
+    velocity: tuple[float, float] = (0.0, 0.0)
+    attentive: bool = True
+    pose: str = "attentive"
+    body_yaw_deg: float = 0.0
+    look_at_camera: bool = True
+    phase: float = 0.0
+    sway: float = 1.0
+    appearance: body.Appearance = field(default_factory=lambda: body.ATTENTIVE_LOOK)
+    alternative: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", _pair(f"pedestrian {self.name} position", self.position))
+        object.__setattr__(self, "velocity", _pair(f"pedestrian {self.name} velocity", self.velocity))
+        if self.pose not in body.POSES:
+            raise ValueError(f"pedestrian {self.name}: pose must be one of {body.POSES}, got {self.pose!r}")
+        if not math.isfinite(self.body_yaw_deg) or not math.isfinite(self.phase):
+            raise ValueError(f"pedestrian {self.name}: body_yaw_deg and phase must be finite")
+        if not 0 <= self.sway <= 10:
+            raise ValueError(f"pedestrian {self.name}: sway must be in [0, 10], got {self.sway!r}")
+
+    @property
+    def body_yaw(self) -> float:
+        return math.radians(self.body_yaw_deg)
+
+    def with_attention(self, attentive: bool | None) -> PedestrianSpec:
+        """This pedestrian attentive or distracted (None: as given); applies ``alternative``."""
+        if attentive is None or attentive == self.attentive:
+            return self
+        if not self.alternative:
+            raise ValueError(f"pedestrian {self.name} has no alternative behaviour in the scenario")
+        kw = dict(self.alternative)
+        if "appearance" in kw:
+            kw["appearance"] = _appearance(kw["appearance"])
+        return replace(self, attentive=attentive, alternative=(), **kw)
+
+
+@dataclass(frozen=True)
+class DriveScenario:
+    """A driving scenario: ego start, heading and speed, goal, road, pedestrians, camera, vehicle,
+    controller, sensing, time limit. ``variants``: the behaviours a plain run covers ("attentive",
+    "distracted": Case II runs its pedestrian both ways; empty: as given)."""
+
+    name: str
+    title: str
+    ego_start: tuple[float, float]
+    goal: tuple[float, float]
+    pedestrians: tuple[PedestrianSpec, ...]
+    ego_yaw_deg: float | None = None
+    ego_speed: float = 0.0
+    road: RoadSpec = field(default_factory=RoadSpec)
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    vehicle: VehicleSpec = field(default_factory=VehicleSpec)
+    control: ControlSpec = field(default_factory=ControlSpec)
+    sensing: SensingSpec = field(default_factory=SensingSpec)
+    variants: tuple[str, ...] = ()
+    duration: float = 25.0
+    goal_tolerance: float = 1.0
+    notes: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ego_start", _pair("ego_start", self.ego_start))
+        object.__setattr__(self, "goal", _pair("goal", self.goal))
+        if self.ego_start == self.goal:
+            raise ValueError(f"scenario {self.name}: ego_start and goal must differ")
+        if not self.pedestrians:
+            raise ValueError(f"scenario {self.name}: needs at least one pedestrian")
+        names = [p.name for p in self.pedestrians]
+        if len(set(names)) != len(names):
+            raise ValueError(f"scenario {self.name}: pedestrian names must be unique, got {names}")
+        if not 0 <= self.ego_speed <= self.vehicle.speed_max:
+            raise ValueError(f"scenario {self.name}: ego_speed must be in [0, speed_max]")
+        if any(v not in ("attentive", "distracted") for v in self.variants):
+            raise ValueError(f"scenario {self.name}: variants must be 'attentive' or 'distracted'")
+        _positive("duration", self.duration)
+        _positive("goal_tolerance", self.goal_tolerance)
+
+    @property
+    def ego_yaw(self) -> float:
+        """Initial heading (rad): given, or from the start toward the goal."""
+        if self.ego_yaw_deg is not None:
+            return math.radians(self.ego_yaw_deg)
+        d = np.subtract(self.goal, self.ego_start)
+        return math.atan2(d[1], d[0])
+
+    def initial_state(self) -> NDArray[np.float64]:
+        """Ego state (x, y, yaw, v) at t = 0."""
+        return np.array([*self.ego_start, self.ego_yaw, self.ego_speed])
+
+    def with_attention(self, attentive: bool | None) -> DriveScenario:
+        """Every pedestrian attentive (True) or distracted (False); None: as given."""
+        if attentive is None:
+            return self
+        return replace(self, pedestrians=tuple(p.with_attention(attentive) for p in self.pedestrians), variants=())
+
+
+def _appearance(v: Any) -> body.Appearance:
+    if isinstance(v, body.Appearance):
+        return v
+    if isinstance(v, str):
+        preset = getattr(body, f"{v.upper()}_LOOK", None)
+        if not isinstance(preset, body.Appearance):
+            raise ValueError(f"unknown appearance preset {v!r} (attentive, distracted, walker)")
+        return preset
+    if isinstance(v, dict):
+        return body.Appearance(**v)
+    raise ValueError(f"appearance must be a preset name or a table of colours, got {v!r}")
+
+
+def _section(cls: type, d: dict[str, Any] | None, where: str) -> Any:
+    d = dict(d or {})
+    known = {f.name for f in fields(cls)}
+    unknown = set(d) - known
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
+    return cls(**d)
+
+
+def _scenario_from_dict(d: dict[str, Any]) -> DriveScenario:
+    d = dict(d)
+    name = d.get("name", "?")
+    peds = []
+    for p in d.pop("pedestrian", []):
+        p = dict(p)
+        alt = p.pop("alternative", {})
+        if "appearance" in p:
+            p["appearance"] = _appearance(p["appearance"])
+        peds.append(_section(PedestrianSpec, {**p, "alternative": tuple(sorted(alt.items()))}, f"{name} pedestrian"))
+    control = dict(d.pop("control", {}))
+    if "gamma" in control:
+        control["gamma"] = GammaParams(**control["gamma"])
+    sections = {
+        "road": _section(RoadSpec, d.pop("road", None), f"{name} [road]"),
+        "camera": _section(CameraSpec, d.pop("camera", None), f"{name} [camera]"),
+        "vehicle": _section(VehicleSpec, d.pop("vehicle", None), f"{name} [vehicle]"),
+        "control": _section(ControlSpec, control, f"{name} [control]"),
+        "sensing": _section(SensingSpec, d.pop("sensing", None), f"{name} [sensing]"),
+    }
+    if "variants" in d:
+        d["variants"] = tuple(d["variants"])
+    return _section(DriveScenario, {**d, **sections, "pedestrians": tuple(peds)}, f"scenario {name}")
+
+
+def load_drive_scenario(name_or_path: str | Path) -> DriveScenario:
+    """Load ``case-1|case-2`` (shipped in sim/scenarios) or a TOML file of the same form."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" and path.exists():
+        text = path.read_text()
+    elif str(name_or_path) in DRIVE_SCENARIOS:
+        text = resources.files("trustnav.sim").joinpath(f"scenarios/{name_or_path}.toml").read_text()
+    else:
+        raise ValueError(
+            f"unknown driving scenario {str(name_or_path)!r}: expected one of {DRIVE_SCENARIOS} or a .toml"
+        )
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{name_or_path}: not valid TOML ({exc})") from exc
+    try:
+        return _scenario_from_dict(data)
+    except TypeError as exc:
+        raise ValueError(f"{name_or_path}: {exc}") from exc
+
+
+def pedestrian_states(scenario: DriveScenario, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Positions (N, 2) and velocities (N, 2) of the pedestrians at time t (constant velocity)."""
+    p0 = np.array([p.position for p in scenario.pedestrians], dtype=float)
+    v = np.array([p.velocity for p in scenario.pedestrians], dtype=float)
+    return p0 + v * t, v
+
+
+def street_of(scenario: DriveScenario) -> StreetSpec:
+    """The street (road, sidewalks, kerb) of a scenario's road, as the renderer draws it."""
+    r = scenario.road
+    return StreetSpec(start=r.start, end=r.end, road_width=r.width, sidewalk_width=r.sidewalk_width)
+
+
+def pedestrian_bodies(
+    scenario: DriveScenario, t: float, look_at: ArrayLike | None
+) -> list[tuple[body.Skeleton, body.Appearance]]:
+    """Each pedestrian's posed 3-D body at time t (head toward ``look_at`` where the scenario says)."""
+    pos, _ = pedestrian_states(scenario, t)
+    street = street_of(scenario)
+    out = []
+    for p, xy in zip(scenario.pedestrians, pos, strict=True):
+        target = look_at if (p.look_at_camera and look_at is not None) else None
+        ground = (float(xy[0]), float(xy[1]), street.ground_height(xy))  # on the kerb where it stands
+        sk = body.pedestrian_skeleton(p.pose, ground, p.body_yaw, t, p.appearance, look_at=target, phase=p.phase,
+                                      sway=p.sway)  # fmt: skip
+        out.append((sk, p.appearance))
+    return out
+
+
+class VehiclePlant:
+    """The ego car: kinematic bicycle integrated with a fine sub-step; a command (steer, accel)
+    takes effect ``latency`` seconds after it is sent (the paper's 100 ms), clipped to the limits."""
+
+    def __init__(self, spec: VehicleSpec, state: ArrayLike, time: float = 0.0) -> None:
+        self.spec = spec
+        self.model = spec.model()
+        self.state = np.asarray(state, dtype=float).copy()
+        self.time = float(time)
+        self.applied = np.zeros(2)
+        self._pending: deque[tuple[float, NDArray[np.float64]]] = deque()
+        self._lo, self._hi = self.model.input_bounds()
+
+    def send(self, command: ArrayLike) -> None:
+        """Send a command now; it acts from now + latency."""
+        u = np.clip(np.asarray(command, dtype=float).reshape(2), self._lo, self._hi)
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"command must be finite (steer, accel), got {command!r}")
+        self._pending.append((self.time + self.spec.latency, u))
+
+    def advance(self, duration: float) -> NDArray[np.float64]:
+        """Integrate for ``duration`` seconds; returns the states at each sub-step (n, 4)."""
+        n = max(1, math.ceil(duration / self.spec.substep - 1e-9))
+        h = duration / n
+        m = self.model
+        out = np.empty((n, 4))
+        for i in range(n):
+            while self._pending and self._pending[0][0] <= self.time + 1e-9:
+                self.applied = self._pending.popleft()[1]
+            x, y, yaw, v = self.state
+            steer, acc = self.applied
+            # midpoint rule on the bicycle equations (more exact than the controller's Euler step)
+            v_mid = min(max(v + 0.5 * acc * h, m.speed_min), m.speed_max)
+            yaw_mid = yaw + 0.5 * h * v * math.tan(steer) / m.wheelbase
+            self.state = np.array(
+                [
+                    x + h * v_mid * math.cos(yaw_mid),
+                    y + h * v_mid * math.sin(yaw_mid),
+                    yaw + h * v_mid * math.tan(steer) / m.wheelbase,
+                    min(max(v + acc * h, m.speed_min), m.speed_max),
+                ]
+            )
+            self.time += h
+            out[i] = self.state
+        return out
