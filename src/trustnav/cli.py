@@ -188,6 +188,11 @@ def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
 def _drive(args: argparse.Namespace) -> int:
     from trustnav.sim.driving import DRIVE_SCENARIOS
 
+    if args.world == "carla":
+        from trustnav.carla_bridge.command import run_carla_drive
+
+        return run_carla_drive(args)
+
     if args.case not in DRIVE_SCENARIOS:
         raise ValueError(f"unknown case {args.case!r}: expected one of {', '.join(DRIVE_SCENARIOS)}")
     if args.rate is not None and not args.rate > 0:
@@ -206,6 +211,12 @@ def _drive(args: argparse.Namespace) -> int:
     print(f"drive {args.case} ({args.sensing} sensing): wrote {out}/ ({files})")
     _drive_summary(done, out)
     return 0
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from trustnav.campaigns.command import run_sweep_command
+
+    return run_sweep_command(args)
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -276,7 +287,18 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--control-rate", type=float, help="controller steps per second (default: scenario, 20)")
     d.add_argument("--out", help="output directory (default out/<case>)")
     d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
+    d.add_argument("--world", choices=["sim", "carla"], default="sim",
+                   help="sim: trustnav's own world (default); carla: a CARLA server (extra trustnav[carla])")  # fmt: skip
+    d.add_argument("--host", default="localhost", help="CARLA server host (--world carla)")
+    d.add_argument("--port", type=int, default=2000, help="CARLA server port (--world carla)")
+    d.add_argument("--timeout", type=float, default=10.0, help="CARLA connection timeout in seconds (--world carla)")
     d.set_defaults(func=_drive)
+    w = sub.add_parser("sweep", help="a campaign of closed-loop episodes on Dask (records, summary, plots)")
+    w.add_argument("spec", help="campaign spec (YAML or TOML)")
+    w.add_argument("--out", required=True, help="output directory (records are appended; a rerun resumes)")
+    w.add_argument("--scheduler", help="address of a running Dask scheduler (default: a LocalCluster)")
+    w.add_argument("--workers", type=int, help="LocalCluster workers (default: the machine's cores)")
+    w.set_defaults(func=_sweep)
     m = sub.add_parser("demo", help="paper Case I end to end in render mode; prints where the outputs are")
     m.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
     m.add_argument("--seed", type=int, default=0)
