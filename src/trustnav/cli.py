@@ -288,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", help="output directory (default out/<case>)")
     d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
     d.add_argument("--world", choices=["sim", "carla"], default="sim",
-                   help="sim: trustnav's own world (default); carla: a CARLA server (extra trustnav[carla])")  # fmt: skip
+                   help="sim: own world (default); carla: a CARLA server (extra trustnav[carla])")  # fmt: skip
     d.add_argument("--host", default="localhost", help="CARLA server host (--world carla)")
     d.add_argument("--port", type=int, default=2000, help="CARLA server port (--world carla)")
     d.add_argument("--timeout", type=float, default=10.0, help="CARLA connection timeout in seconds (--world carla)")
