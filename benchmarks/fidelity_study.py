@@ -3,7 +3,8 @@
 The paper does not state the reference gain Kp, its speed bound v_max, or the input bound. This
 script sweeps them and prints Markdown tables (the numbers in docs/fidelity.md come from it):
 
-    python benchmarks/fidelity_study.py            # ~1 min on 2 cores
+    python benchmarks/fidelity_study.py              # ~1 min on 2 cores
+    python benchmarks/fidelity_study.py --baselines  # Scenario III with the three solvers (~40 s)
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import itertools
 import numpy as np
 
 from trustnav.sim import load_scenario, run_episode
-from trustnav.sim.paper import with_overrides
+from trustnav.sim.paper import episode_metrics, with_overrides
 
 R = 3.0
 
@@ -61,10 +62,30 @@ def scenario_3(gains, vmaxes) -> None:
         print(f"| {timing} | {kp} | {vm} | {cells} | {'yes' if order_min else 'no'} | {share:.2f} |")
 
 
+def baselines() -> None:
+    """Scenario III (shipped setting) with the default SQP and both SLSQP baselines."""
+    print("\n### Scenario III with each solver (shipped setting, checked fallbacks)\n")
+    print("| solver | timing | N_h | min distance (trust 1.0, 0.3) | margin violations | solver failures | "
+          "fallback steps |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
+    sc = load_scenario("paper-3")
+    for solver in ("sqp", "slsqp", "slsqp-authors"):
+        for timing in ("paper", "authors_code"):
+            for h in sc.horizons:
+                m = episode_metrics(run_episode(sc, horizon=h, timing=timing, solver=solver), R)
+                d = ", ".join(f"{v:.3f}" for v in m["min_distance"])
+                print(f"| {solver} | {timing} | {h} | {d} | {m['margin_violations']} | {m['solver_failures']} | "
+                      f"{m['fallback_steps']} |", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="fewer settings")
+    ap.add_argument("--baselines", action="store_true", help="only Scenario III with the three solvers")
     args = ap.parse_args()
+    if args.baselines:
+        baselines()
+        return
     gains = [1.0, 1.5] if args.quick else [1.0, 1.5, 2.0]
     scenario_1(gains, [5.0, 10.0] if args.quick else [5.0, 10.0, 15.0])
     scenario_2(gains, [5.0, 7.0, 10.0] if args.quick else [5.0, 7.0, 10.0, 15.0])

@@ -1,25 +1,64 @@
-"""`trustnav ...` entry points (thin: parse, call sim/viz, write files)."""
+"""`trustnav ...` entry points (thin: parse, call sim/viz, write files).
+
+Output rule (every command but ``sweep``, which resumes into its folder on purpose): a folder that
+already holds files is never written into silently. ``--overwrite`` replaces trustnav's own
+outputs there (files of other names are left alone); default folders are named after the run
+(scenario and solver, case and sensing) so two different runs never share one; ``demo`` replaces
+its own default folder ``out/demo``, since it is run again and again.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import shutil
+import signal
 import sys
+import threading
 from pathlib import Path
 
 __all__ = ["main"]
 
+ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json")
+SCENARIO_OUTPUTS = ("paper-*.png", "metrics.json")
+DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames", "metrics.json",
+                 "attentive", "distracted")  # fmt: skip
+
+
+def prepare_out(out: Path, overwrite: bool, outputs: tuple[str, ...]) -> Path:
+    """Make the output folder ``out``; refuse one that holds files unless ``overwrite``, which
+    first removes trustnav's own ``outputs`` (glob patterns) there and nothing else."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, expected a folder (new or empty) for the outputs")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise ValueError(
+                f"--out {out} is not empty (outputs of an earlier run?): pass --overwrite to replace "
+                "trustnav's outputs there, or choose a new folder"
+            )
+        for pattern in outputs:
+            for old in out.glob(pattern):
+                if old.is_dir() and not old.is_symlink():
+                    shutil.rmtree(old)
+                else:
+                    old.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
 
 def _scenario(args: argparse.Namespace) -> int:
+    from trustnav.control.solvers import make_solver
     from trustnav.sim.paper import run_scenario
     from trustnav.viz.paper_plots import plot_scenario
 
-    out = Path(args.out or f"out/{args.name}")
-    out.mkdir(parents=True, exist_ok=True)
+    make_solver(args.solver)  # refuse an unknown solver before anything is written
+    default = f"out/{args.name}" if args.solver == "sqp" else f"out/{args.name}-{args.solver}"
+    out = prepare_out(Path(args.out or default), args.overwrite, SCENARIO_OUTPUTS)
     result = run_scenario(args.name, solver=args.solver)
     fig = plot_scenario(result, out)
     (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2))
-    print(f"{args.name}: wrote {fig} and {out / 'metrics.json'}")
+    print(f"{args.name} ({args.solver}): wrote {fig} and {out / 'metrics.json'}")
     _summary(result.metrics)
     return 0
 
@@ -44,75 +83,184 @@ def _summary(m: dict) -> None:
             line("control (all trusts 1.0)", m["control_equal_trust"])
 
 
-def _estimate(args: argparse.Namespace) -> int:
-    import csv
+class _RecordSink:
+    """tracks.csv written and flushed frame by frame; tracks.json written on close (also after an
+    interruption), so an interrupted run keeps every record it produced."""
 
-    import cv2
+    FIELDS = ("frame", "track_id", "bbox", "eye_contact", "phone", "fluctuation", "smartphone_trait", "eye_trait",
+              "pose_trait", "score", "trust", "sequence")  # fmt: skip
+
+    def __init__(self, out: Path) -> None:
+        import csv
+
+        self.out = out
+        self.rows: list[dict] = []
+        self._fh = open(out / "tracks.csv", "w", newline="")  # closed in close()
+        self._csv = csv.DictWriter(self._fh, fieldnames=self.FIELDS)
+        self._csv.writeheader()
+        self._fh.flush()
+
+    def add(self, records: list[dict]) -> None:
+        self.rows.extend(records)
+        self._csv.writerows({**r, "bbox": " ".join(f"{v:g}" for v in r["bbox"])} for r in records)
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+        tmp = self.out / "tracks.json.part"
+        tmp.write_text(json.dumps(self.rows, indent=1))
+        tmp.replace(self.out / "tracks.json")
+
+
+def _safe_name(label: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in label) or "input"
+
+
+class _Annotations:
+    """Where annotated frames go, one name per input frame: ``frames/<stem>.png`` (a folder's
+    frames under ``frames/<folder>/`` when there are several sequences), ``annotated.mp4`` (or
+    ``annotated_<input>.mp4`` per video sequence when there are several)."""
+
+    def __init__(self, out: Path, sequences: list, mp4: bool) -> None:
+        self.out = out
+        self.mp4 = mp4
+        self.n_videos = sum(s.has_video or mp4 for s in sequences)
+        self.nested = len(sequences) > 1
+        self.used: set[Path] = set()
+        self.writer = None
+        self.size: tuple[int, int] | None = None
+        self.seq = None
+
+    def _unique(self, candidates: list[Path]) -> Path:
+        for c in candidates:
+            if c not in self.used:
+                break
+        else:
+            base, k = candidates[-1], 2
+            while (c := base.with_name(f"{base.stem}-{k}{base.suffix}")) in self.used:
+                k += 1
+        self.used.add(c)
+        return c
+
+    def start(self, seq, fps: float) -> None:
+        self.close()
+        self.seq, self.fps = seq, fps
+
+    def add(self, name: str, img) -> None:
+        import cv2
+
+        seq = self.seq
+        if seq.has_video or self.mp4:
+            if self.writer is None:
+                name_mp4 = "annotated.mp4" if self.n_videos == 1 else f"annotated_{_safe_name(seq.label)}.mp4"
+                path = self._unique([self.out / name_mp4])
+                self.size = (img.shape[1], img.shape[0])
+                self.writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self.size)
+            if (img.shape[1], img.shape[0]) != self.size:
+                img = cv2.resize(img, self.size)
+            self.writer.write(img)
+            return
+        folder = self.out / "frames"
+        if self.nested and seq.kind == "folder":
+            folder = folder / _safe_name(seq.label)
+        stem = Path(name).stem
+        path = self._unique([folder / f"{stem}.png", folder / f"{_safe_name(seq.label)}.png"])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(path), img):
+            raise OSError(f"cannot write {path}")
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+            self.writer = None
+
+
+def _raise_interrupt(signum, frame) -> None:  # SIGTERM (e.g. `timeout`) handled as Ctrl-C
+    raise KeyboardInterrupt
+
+
+def _estimate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from trustnav.perception.frames import VIDEO_SUFFIXES, expand_inputs, frame_count, iter_frames, source_fps
+    from trustnav.perception.frames import frame_count, iter_sequence, plan_sequences, source_fps
     from trustnav.perception.looking import LookingModel
     from trustnav.perception.optional_backends import make_backend
     from trustnav.perception.phone import phone_label
     from trustnav.perception.pipeline import PerceptionPipeline, estimate
     from trustnav.perception.tracking import PersonTracker
     from trustnav.trust.estimator import TrustEstimator
+    from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST
     from trustnav.viz.annotate import annotate
 
-    inputs = expand_inputs(args.inputs)  # once: folders listed, existence checked
-    fps = source_fps(inputs, args.fps)
-    video_in = any(p.suffix.lower() in VIDEO_SUFFIXES for p in inputs)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    total = frame_count(inputs)
+    # everything that can be refused is refused before the output folder is touched
+    if not 0 < args.fps < math.inf:
+        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
+    if args.scan_frames < 1:
+        raise ValueError(f"--scan-frames must be an integer >= 1, got {args.scan_frames}")
+    sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
+    eye = LookingModel.from_file(args.looking_weights)
+    out = prepare_out(Path(args.out), args.overwrite, ESTIMATE_OUTPUTS)
     kwargs = {"scan_frames": args.scan_frames} if args.backend == "mediapipe" else {}
     backend = make_backend(args.backend, video=True, **kwargs)
-    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), LookingModel.from_file(args.looking_weights))
-    writer = None
-    rows: list[dict] = []
-    errors = 0
+    sink = _RecordSink(out)
+    images = _Annotations(out, sequences, args.mp4)
+    counts = {"read": 0, "skipped": 0}
+    interrupted = False
+    total = frame_count([f for s in sequences for f in s.files])
+    bar = tqdm(total=total, unit="frame")
 
     def report(res) -> None:
-        nonlocal errors
-        errors += 1
+        counts["skipped"] += 1
         tqdm.write(f"trustnav: skipped frame {res.name}: {res.error}", file=sys.stderr)
 
-    size: tuple[int, int] | None = None
-    results = estimate(iter_frames(inputs), pipeline, TrustEstimator(), fps, on_error=report)
-    for res in tqdm(results, total=total, unit="frame"):
-        rows.extend(res.records)
-        if res.error is not None or args.no_images:
-            continue
-        img = annotate(
-            res.rgb,
-            res.records,
-            [tp.person.keypoints for tp in res.people],
-            [phone_label(tp.phone) for tp in res.people],
-        )
-        if video_in or args.mp4:
-            if writer is None:
-                size = (img.shape[1], img.shape[0])
-                writer = cv2.VideoWriter(str(out / "annotated.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-            if (img.shape[1], img.shape[0]) != size:
-                img = cv2.resize(img, size)
-            writer.write(img)
-        else:
-            (out / "frames").mkdir(exist_ok=True)
-            cv2.imwrite(str(out / "frames" / f"{Path(res.name).stem}.png"), img)
-    if writer is not None:
-        writer.release()
-    if hasattr(backend, "close"):
-        backend.close()
-    fields = ["frame", "track_id", "bbox", "eye_contact", "phone", "fluctuation",
-              "smartphone_trait", "eye_trait", "pose_trait", "score", "trust"]  # fmt: skip
-    with open(out / "tracks.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=fields)
-        w.writeheader()
-        for r in rows:
-            w.writerow({**r, "bbox": " ".join(f"{v:g}" for v in r["bbox"])})
-    (out / "tracks.json").write_text(json.dumps(rows, indent=1))
-    tracks = len({r["track_id"] for r in rows})
-    print(f"estimate: {len(rows)} records, {tracks} tracks, {errors} frames skipped; wrote {out}")
+    main_thread = threading.current_thread() is threading.main_thread()
+    old_term = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None
+    try:
+        for seq in sequences:
+            fps = source_fps(list(seq.files), args.fps) if seq.has_video else args.fps
+            if hasattr(backend, "reset"):
+                backend.reset()  # nothing followed from the previous sequence
+            pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), eye)
+            images.start(seq, fps)
+            bar.set_description(seq.label[-30:])
+            trust = TrustEstimator(MOVING_AVERAGE_TRUST if args.trust == "moving-average" else PAPER_TRUST)
+            for res in estimate(iter_sequence(seq.files), pipeline, trust, fps, report, seq.label):
+                bar.update(1)
+                if res.error is not None:
+                    continue
+                counts["read"] += 1
+                sink.add(res.records)
+                if not args.no_images:
+                    img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
+                                   [phone_label(tp.phone) for tp in res.people])  # fmt: skip
+                    images.add(res.name, img)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        # the records are saved whatever happens; a second Ctrl-C must not cut this short
+        old_int = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+        try:
+            bar.close()
+            images.close()
+            sink.close()
+            if hasattr(backend, "close"):
+                backend.close()
+        finally:
+            if main_thread:
+                signal.signal(signal.SIGINT, old_int)
+                signal.signal(signal.SIGTERM, old_term)
+    rows = sink.rows
+    tracks = len({(r["sequence"], r["track_id"]) for r in rows})
+    if interrupted:
+        print(f"trustnav: interrupted after {counts['read']} frames; kept {len(rows)} records in "
+              f"{out / 'tracks.csv'} and tracks.json", file=sys.stderr)  # fmt: skip
+        return 130
+    if counts["read"] == 0:
+        print(f"trustnav: error: none of the {counts['skipped']} input frames could be read (see above); "
+              f"nothing to estimate", file=sys.stderr)  # fmt: skip
+        return 1
+    print(f"estimate: {counts['read']} frames in {len(sequences)} sequence{'s' * (len(sequences) > 1)}, "
+          f"{len(rows)} records, {tracks} tracks, {counts['skipped']} frames skipped; wrote {out}")  # fmt: skip
     return 0
 
 
@@ -199,7 +347,8 @@ def _drive(args: argparse.Namespace) -> int:
         raise ValueError(f"--rate must be a positive number of frames per second, got {args.rate}")
     if args.control_rate is not None and not args.control_rate > 0:
         raise ValueError(f"--control-rate must be a positive number of steps per second, got {args.control_rate}")
-    out = Path(args.out or f"out/{args.case}")
+    default = f"out/{args.case}" if args.sensing == "render" else f"out/{args.case}-{args.sensing}"
+    out = prepare_out(Path(args.out or default), args.overwrite, DRIVE_OUTPUTS)
     done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, out, video=not args.no_video,
                        control_rate=args.control_rate)  # fmt: skip
     files = "top_view.png, trust.png, distance.png, drive.mp4, frames/, metrics.json"
@@ -222,7 +371,9 @@ def _sweep(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     import time
 
-    out = Path(args.out)
+    # the demo is run again and again: its own default folder is replaced (trustnav's outputs only);
+    # a folder the user names follows the rule of every command
+    out = prepare_out(Path(args.out or "out/demo"), args.overwrite or args.out is None, DRIVE_OUTPUTS)
     t0 = time.perf_counter()
     done = _drive_runs("case-1", "render", None, args.seed, None, out)
     print(f"demo (paper Case I, camera -> perception -> trust -> MPC, {time.perf_counter() - t0:.0f} s): wrote")
@@ -247,17 +398,21 @@ def build_parser() -> argparse.ArgumentParser:
         "scenario", help="run one of the paper's numerical scenarios and write its figure + metrics.json"
     )
     s.add_argument("name", choices=["paper-1", "paper-2", "paper-3"])
-    s.add_argument("--out", help="output directory (default out/<name>)")
-    s.add_argument(
-        "--solver", choices=["sqp", "slsqp"], default="sqp", help="sqp: fast default; slsqp: paper-style reference"
-    )
+    s.add_argument("--out", help="output directory (default out/<name>, out/<name>-<solver> for another solver)")
+    s.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
+    s.add_argument("--solver", choices=["sqp", "slsqp", "slsqp-authors"], default="sqp",
+                   help="sqp: fast default; slsqp: SLSQP, tuned; slsqp-authors: as the authors' code")  # fmt: skip
     s.set_defaults(func=_scenario)
     e = sub.add_parser(
         "estimate",
         help="perception + trust on images, folders of frames or videos: annotated frames, tracks.csv/json",
     )
-    e.add_argument("inputs", nargs="+", help="image files, folders of frames (natural order) or video files")
-    e.add_argument("--out", required=True, help="output directory")
+    e.add_argument("inputs", nargs="+",
+                   help="images, folders of frames (natural order) or videos; each its own sequence")  # fmt: skip
+    e.add_argument("--out", required=True, help="output directory (new or empty)")
+    e.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
+    e.add_argument("--one-sequence", action="store_true",
+                   help="run all inputs as one sequence (one tracker and trust state), in the order given")  # fmt: skip
     e.add_argument("--fps", type=float, default=10.0, help="frame rate of image sequences (videos: their own)")
     e.add_argument("--backend", choices=["mediapipe", "openpifpaf", "yolo"], default="mediapipe")
     e.add_argument(
@@ -267,8 +422,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="mediapipe: share the tiled search over N frames (faster, fewer found)",
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
+    e.add_argument("--trust", choices=["paper", "moving-average"], default="paper",
+                   help="paper: PAPER_TRUST, only rises (default); moving-average: MOVING_AVERAGE_TRUST")  # fmt: skip
     e.add_argument("--no-images", action="store_true", help="write only tracks.csv/json")
-    e.add_argument("--mp4", action="store_true", help="write annotated.mp4 also for image inputs (not PNG frames)")
+    e.add_argument("--mp4", action="store_true",
+                   help="image inputs too: an annotated MP4 per sequence instead of PNG frames")  # fmt: skip
     e.set_defaults(func=_estimate)
     d = sub.add_parser(
         "drive",
@@ -285,7 +443,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0, help="seed of sensing noise (default 0)")
     d.add_argument("--rate", type=float, help="camera frames per second = trust-estimation rate (default: scenario, 1)")
     d.add_argument("--control-rate", type=float, help="controller steps per second (default: scenario, 20)")
-    d.add_argument("--out", help="output directory (default out/<case>)")
+    d.add_argument("--out", help="output directory (default out/<case>, out/<case>-keypoints)")
+    d.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
     d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
     d.add_argument("--world", choices=["sim", "carla"], default="sim",
                    help="sim: own world (default); carla: a CARLA server (extra trustnav[carla])")  # fmt: skip
@@ -298,9 +457,13 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--out", required=True, help="output directory (records are appended; a rerun resumes)")
     w.add_argument("--scheduler", help="address of a running Dask scheduler (default: a LocalCluster)")
     w.add_argument("--workers", type=int, help="LocalCluster workers (default: the machine's cores)")
+    w.add_argument("--batch", type=int, help="episodes per Dask task (default: the spec's batch, else 1)")
+    w.add_argument("--retry-failed", action="store_true", help="run recorded failed episodes again")
+    w.add_argument("--quiet", action="store_true", help="no progress bar")
     w.set_defaults(func=_sweep)
     m = sub.add_parser("demo", help="paper Case I end to end in render mode; prints where the outputs are")
-    m.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    m.add_argument("--out", help="output directory (default out/demo, replaced on every run)")
+    m.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
     m.add_argument("--seed", type=int, default=0)
     m.set_defaults(func=_demo)
     return p
@@ -311,8 +474,20 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ValueError, ImportError) as exc:
-        print(f"trustnav: error: {exc}", file=sys.stderr)
+        print(f"trustnav: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:  # missing files, unwritable --out, full disk: one line, no traceback
+        where = f": {exc.filename}" if exc.filename and str(exc.filename) not in str(exc.strerror) else ""
+        text = f"{exc.strerror}{where}" if exc.strerror else _one_line(exc)
+        print(f"trustnav: error: {text}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("trustnav: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

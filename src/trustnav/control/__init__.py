@@ -15,10 +15,19 @@ from trustnav.control.problem import (
     make_problem,
 )
 from trustnav.control.reference import BoundedProportionalReference
-from trustnav.control.solvers import SlsqpSolver, SolveResult, SolveStatus, SqpSolver, make_solver
+from trustnav.control.solvers import (
+    AuthorsSlsqpSolver,
+    SlsqpSolver,
+    SolveResult,
+    SolveStatus,
+    SqpSolver,
+    make_solver,
+    rank_key,
+)
 
 __all__ = [
     "TIMINGS",
+    "AuthorsSlsqpSolver",
     "BicycleProblem",
     "BoundedProportionalReference",
     "DynamicsModel",
@@ -41,4 +50,5 @@ __all__ = [
     "make_problem",
     "make_solver",
     "predict_pedestrians",
+    "rank_key",
 ]

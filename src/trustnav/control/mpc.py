@@ -15,7 +15,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control.models import DynamicsModel
 from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians, make_problem
-from trustnav.control.solvers import FEAS_TOL, SlsqpSolver, SolveResult, SolveStatus, SqpSolver, rank_key
+from trustnav.control.solvers import (
+    FEAS_TOL,
+    AuthorsSlsqpSolver,
+    SlsqpSolver,
+    SolveResult,
+    SolveStatus,
+    SqpSolver,
+    rank_key,
+)
 
 __all__ = ["MpcController", "MpcSolution"]
 
@@ -54,7 +62,7 @@ class MpcController:
         model: DynamicsModel,
         cost: object,
         config: MpcConfig | None = None,
-        solver: SqpSolver | SlsqpSolver | None = None,
+        solver: SqpSolver | SlsqpSolver | AuthorsSlsqpSolver | None = None,
     ) -> None:
         self.model = model
         self.config = config or MpcConfig()
@@ -107,7 +115,7 @@ class MpcController:
         peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)  # refuse bad input first
         x, peds = self._compensate(self.model.check_state(state), peds, vels, velocities is not None)
         p = self.problem
-        p.set_stage(x, peds, vels, tr, self._last_control)
+        p.set_checked_stage(x, peds, vels, tr, self._last_control)
         shifted = None if self._plan is None else np.vstack([self._plan[1:], self._plan[-1:]])
         u0 = p.initial_guess() if shifted is None else shifted
         deadline = self.config.step_deadline
@@ -131,7 +139,7 @@ class MpcController:
                 message = f"{source} applied (violation {viol:.3g}) instead of the solver's plan: " + (
                     f"{res.status.value}: {res.message}" if res.message else res.status.value
                 )
-        decided = p.decided_violation()  # the same at every plan: any build since set_stage holds it
+        decided = p.decided_violation() if p.n_decided else 0.0  # the same at every plan
         if decided > FEAS_TOL:
             note = f"CBF rows fixed by the current state (no input changes them) violated by {decided:.3g}"
             message = f"{message}; {note}" if message else note

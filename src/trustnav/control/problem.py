@@ -147,6 +147,15 @@ class PlanCheck(NamedTuple):
 
 def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
     """An (N, 2) array of finite points (N may be 0); anything else is refused by name and shape."""
+    if (
+        type(value) is np.ndarray
+        and value.dtype == np.float64
+        and value.ndim == 2
+        and value.shape[1] == 2
+        and value.flags.c_contiguous
+        and math.isfinite(float(value.sum()))
+    ):
+        return value  # the common case, checked cheaply (NaN and inf make the sum non-finite)
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -223,12 +232,24 @@ class MpcProblem:
         trusts: ArrayLike,
         u_prev: ArrayLike | None = None,
     ) -> None:
-        """Data of one MPC step; gamma_j from trust_j by `weight`."""
-        x0 = self.model.check_state(state).copy()
-        peds, self.vels, tr = as_pedestrians(pedestrians, velocities, trusts)
+        """Data of one MPC step; gamma_j from trust_j by `weight` (inputs validated)."""
+        peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)
+        self.set_checked_stage(self.model.check_state(state), peds, vels, tr, u_prev)
+
+    def set_checked_stage(
+        self,
+        x0: NDArray[np.float64],
+        peds: NDArray[np.float64],
+        vels: NDArray[np.float64],
+        tr: NDArray[np.float64],
+        u_prev: ArrayLike | None = None,
+    ) -> None:
+        """:meth:`set_stage` for inputs already validated by :func:`as_pedestrians` and the model."""
+        x0 = x0.copy()
+        self.vels = vels
         # ego-centred coordinates: the problem is solved relative to the ego's position, so large
         # map coordinates (1e9 m) lose no precision; inputs are translation invariant
-        if np.abs(x0[:2]).max() > MAX_COORDINATE:
+        if abs(x0[0]) > MAX_COORDINATE or abs(x0[1]) > MAX_COORDINATE:
             raise ValueError(
                 f"ego position {x0[:2].tolist()} is beyond +-{MAX_COORDINATE:g} m, where float64 cannot hold "
                 "millimetre offsets between ego and pedestrians: use a local origin"

@@ -1,4 +1,4 @@
-"""Solvers for problem `proposed`: a fast SQP on DAQP (default) and the paper-style SLSQP reference.
+"""Solvers for problem `proposed`: a fast SQP on DAQP (default) and two SLSQP reference baselines.
 
 Both return a :class:`SolveResult` with a status; neither returns an unchecked solution: the
 CBF rows are evaluated exactly at the returned inputs and their worst violation is reported.
@@ -18,7 +18,16 @@ from scipy.optimize import minimize
 
 from trustnav.control.problem import MpcProblem, PlanCheck
 
-__all__ = ["FEAS_TOL", "SlsqpSolver", "SolveResult", "SolveStatus", "SqpSolver", "make_solver", "rank_key"]
+__all__ = [
+    "FEAS_TOL",
+    "AuthorsSlsqpSolver",
+    "SlsqpSolver",
+    "SolveResult",
+    "SolveStatus",
+    "SqpSolver",
+    "make_solver",
+    "rank_key",
+]
 
 DEADLINE = "deadline"  # QP flag: not started, it would not end before the deadline
 FEAS_TOL = 1e-6  # tolerance on CBF rows (units of the barrier, m^2) to call a solution feasible
@@ -73,7 +82,7 @@ class _Best:
             return
         key = rank_key(check)
         if self.key is None or key < self.key:
-            self.key, self.u, self.check = key, u.copy(), check
+            self.key, self.u, self.check = key, u, check  # callers never modify an offered array
 
 
 class SqpSolver:
@@ -190,6 +199,14 @@ class SqpSolver:
             return None, exitflag
         return np.asarray(x[: p.n]), exitflag
 
+    @staticmethod
+    def _settle(p: MpcProblem, best: _Best, seen: list[NDArray[np.float64]]) -> None:
+        """Check the iterates not yet checked exactly and offer them (rebuilds the QP buffers)."""
+        for u in seen:
+            if math.isfinite(float(u.sum())):
+                best.offer(u, p.evaluate(u))
+        seen.clear()
+
     def _recover(self, p: MpcProblem, u: NDArray[np.float64], best: _Best, budget: int, until: float | None):
         """Feasibility recovery: candidate starts ranked by exact violation; the first whose
         hard QP is feasible. Returns (start, step, cost, tried) or (None, None, nan, tried)."""
@@ -226,6 +243,7 @@ class SqpSolver:
         p = problem
         u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
         best = _Best()
+        seen: list[NDArray[np.float64]] = []  # iterates not yet checked
         slack: tuple[NDArray[np.int64], int] | None = None
         converged = recovered = deadline_hit = False
         restarts = 0
@@ -241,9 +259,10 @@ class SqpSolver:
             if not fresh:
                 cost = p.build(u)
             fresh = False
-            best.offer(u, p.check_built(cost))
+            seen.append(u)  # ranked only when needed (recovery, relaxation, an unconverged end)
             step, flag = self._qp(p, slack, until if it > 1 else None)  # the first QP always runs
             if step is None and flag != DEADLINE and slack is None and p.m_cbf > 0:
+                self._settle(p, best, seen)
                 if restarts < self.max_restarts:
                     start, step, c_start, tried = self._recover(
                         p, u, best, self.max_restarts - restarts, until_recovery
@@ -283,14 +302,17 @@ class SqpSolver:
                 converged = True
                 break
         # the final iterate, checked exactly
-        final = p.evaluate(u) if np.isfinite(u).all() else None
-        if final is not None:
-            best.offer(u, final)
+        final = p.evaluate(u) if math.isfinite(float(u.sum())) else None
+        done = converged and final is not None and (final.worst <= FEAS_TOL or slack is not None)
+        if not done:
+            if final is not None:
+                best.offer(u, final)
+            self._settle(p, best, seen)
         elapsed = time.perf_counter() - t0
-        if best.u is None:  # nothing finite was ever evaluated
+        if best.u is None and not done:  # nothing finite was ever evaluated
             return SolveResult(u, SolveStatus.FAILED, it, math.nan, math.nan, True, message or "non-finite iterate",
                                elapsed, math.nan, recovered, restarts, deadline_hit)  # fmt: skip
-        if converged and final is not None and (final.worst <= FEAS_TOL or slack is not None):
+        if done:
             out_u, out = u, final  # the converged iterate itself
         else:
             out_u, out = best.u, best.check
@@ -314,18 +336,40 @@ class SqpSolver:
                            recovered, restarts, deadline_hit)  # fmt: skip
 
 
-class SlsqpSolver:
-    """Reference baseline: scipy SLSQP on Python closures, written as the paper's code does it.
+def _slsqp_result(p: MpcProblem, res, t0: float) -> SolveResult:
+    """A scipy SLSQP result, checked exactly against the CBF rows an input can change."""
+    u = np.asarray(res.x, dtype=float).reshape(p.n_h, -1)
+    rows = p.constraints_np(u)[p.n_decided : p.m_cbf]
+    viol = float(max(0.0, -rows.min())) if rows.size else 0.0
+    first = float(max(0.0, -rows[: p.n_p].min())) if rows.size else 0.0
+    message = str(res.message)
+    if res.status == 0 and viol <= FEAS_TOL:
+        status = SolveStatus.OPTIMAL
+    elif res.status == 9:
+        status = SolveStatus.MAX_ITER
+    else:
+        status = SolveStatus.FAILED
+        if res.status == 0:
+            message = f"{message}, but CBF rows violated by up to {viol:.3g}"
+    return SolveResult(u, status, int(res.nit), float(res.fun), viol, viol > FEAS_TOL, message,
+                       time.perf_counter() - t0, first)  # fmt: skip
 
-    Gradients are finite differences (no ``jac`` given). By default all rows are one vectorised
-    numpy function (the faster, conservative baseline); ``per_row=True`` makes every CBF row its
-    own closure that rolls the horizon out again (10-100x slower still). No relaxation: an
-    infeasible problem is reported as FAILED.
+
+class SlsqpSolver:
+    """Reference baseline "SLSQP, tuned": scipy SLSQP on Python closures with finite-difference
+    gradients, warm-started by the controller from the shifted previous plan.
+
+    Tuned against the authors' code (see :class:`AuthorsSlsqpSolver`): ftol 1e-10 and up to 500
+    iterations, and by default all rows are one vectorised numpy function (``per_row=True``
+    makes every CBF row its own closure). No relaxation: an infeasible problem is reported as
+    FAILED, and the controller then applies its best checked fallback.
     """
 
     name = "slsqp"
 
     def __init__(self, ftol: float = 1e-10, max_iter: int = 500, per_row: bool = False) -> None:
+        if not ftol > 0 or max_iter < 1:
+            raise ValueError(f"ftol must be > 0 and max_iter >= 1, got {ftol!r} and {max_iter!r}")
         self.ftol = ftol
         self.max_iter = max_iter
         self.per_row = per_row
@@ -343,23 +387,71 @@ class SlsqpSolver:
         x0 = np.clip(np.asarray(u0, dtype=float).reshape(-1), p.lo, p.hi)
         res = minimize(p.cost_np, x0, method="SLSQP", bounds=bounds, constraints=cons,
                        options={"ftol": self.ftol, "maxiter": self.max_iter})  # fmt: skip
-        u = np.asarray(res.x).reshape(p.n_h, -1)
-        rows = p.constraints_np(u)[p.n_decided : p.m_cbf]
-        viol = float(max(0.0, -rows.min())) if rows.size else 0.0
-        first = float(max(0.0, -rows[: p.n_p].min())) if rows.size else 0.0
-        if res.status == 0 and viol <= FEAS_TOL:
-            status = SolveStatus.OPTIMAL
-        elif res.status == 9:
-            status = SolveStatus.MAX_ITER
+        return _slsqp_result(p, res, t0)
+
+
+class AuthorsSlsqpSolver:
+    """Reference baseline "SLSQP, authors' style": the MPC written as the paper's code writes it.
+
+    One Python closure per pedestrian and horizon step (each rolls the horizon out again), one
+    per extra model row; scipy's default ``ftol`` (1e-6) and ``maxiter`` (100); finite-difference
+    gradients. The warm start is the solver's own: the previous step's solution as it was, not
+    shifted by one step (``warm_start="previous"``; the first step, and any step after the number
+    of pedestrians changed, starts from zero input), or zero input at every step
+    (``warm_start="zeros"``). The controller's shifted plan is not used. Rows no input can
+    change (the bicycle's k = 0 rows) are left out, as in :class:`SlsqpSolver`.
+    """
+
+    name = "slsqp-authors"
+
+    def __init__(self, warm_start: str = "previous") -> None:
+        if warm_start not in ("previous", "zeros"):
+            raise ValueError(f"warm_start must be 'previous' or 'zeros', got {warm_start!r}")
+        self.warm_start = warm_start
+        self._previous: NDArray[np.float64] | None = None
+
+    @staticmethod
+    def _row(p: MpcProblem, k: int, j: int):
+        """Closure of the CBF row of pedestrian j at horizon step k (`cbf_imp`)."""
+        c = p.config
+        dt, r2 = c.dt, c.safety_radius**2
+        q_now = p.peds[j] + k * dt * p.vels[j]
+        q_next = q_now + dt * p.vels[j] if c.timing == "paper" else q_now
+        omg = float(p.one_minus_gamma[j])
+
+        def row(u: NDArray[np.float64]) -> float:
+            xs = p.states_np(u)
+            h_now = float(np.sum((xs[k, :2] - q_now) ** 2)) - r2
+            h_next = float(np.sum((xs[k + 1, :2] - q_next) ** 2)) - r2
+            return h_next - omg * h_now
+
+        return row
+
+    def solve(self, problem: MpcProblem, u0: NDArray[np.float64], deadline: float | None = None) -> SolveResult:
+        """One SLSQP run; ``u0`` (the controller's shifted plan) is ignored, see the class."""
+        t0 = time.perf_counter()
+        p = problem
+        steps = range(p.decided_steps, p.n_h)
+        cons = [{"type": "ineq", "fun": self._row(p, k, j)} for k in steps for j in range(p.n_p)]
+        extra = range(p.constraints_np(np.zeros(p.n)).size - p.m_cbf)  # model rows (speed bounds)
+        cons += [{"type": "ineq", "fun": lambda u, i=i: p.constraints_np(u)[p.m_cbf + i]} for i in extra]
+        prev = self._previous
+        if self.warm_start == "previous" and prev is not None and prev.size == p.n and np.isfinite(prev).all():
+            x0 = prev
         else:
-            status = SolveStatus.FAILED
-        return SolveResult(u, status, int(res.nit), float(res.fun), viol, viol > FEAS_TOL, str(res.message),
-                           time.perf_counter() - t0, first)  # fmt: skip
+            x0 = np.zeros(p.n)
+        x0 = np.clip(x0, p.lo, p.hi)
+        res = minimize(p.cost_np, x0, method="SLSQP", bounds=list(zip(p.lo, p.hi, strict=True)), constraints=cons)
+        self._previous = np.asarray(res.x, dtype=float).copy()
+        return _slsqp_result(p, res, t0)
 
 
-def make_solver(name: str) -> SqpSolver | SlsqpSolver:
+def make_solver(name: str) -> SqpSolver | SlsqpSolver | AuthorsSlsqpSolver:
+    """A solver by name: 'sqp' (default), 'slsqp' (SLSQP, tuned) or 'slsqp-authors' (the authors' style)."""
     if name in ("sqp", "sqp-daqp", "default"):
         return SqpSolver()
     if name == "slsqp":
         return SlsqpSolver()
-    raise ValueError(f"unknown solver {name!r}: expected 'sqp' (default) or 'slsqp'")
+    if name == "slsqp-authors":
+        return AuthorsSlsqpSolver()
+    raise ValueError(f"unknown solver {name!r}: expected 'sqp' (default), 'slsqp' (tuned) or 'slsqp-authors'")

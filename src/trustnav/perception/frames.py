@@ -1,11 +1,22 @@
-"""Frame sources for `trustnav estimate`: image files, folders of frames (natural order), videos."""
+"""Frame sources for `trustnav estimate`: image files, folders of frames (natural order), videos.
+
+Inputs are grouped into *sequences* (:func:`plan_sequences`): each video, each folder of frames
+and each loose image is its own sequence, with its own tracker and trust state, unless the caller
+asks for one sequence. A frame that cannot be decoded completely (an empty file, a text file named
+``.jpg``, a truncated JPEG that a decoder would fill with grey) is yielded with ``frame=None`` and
+the reason, never as pixels.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,15 +25,20 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "VIDEO_SUFFIXES",
     "FrameItem",
+    "FrameSequence",
     "expand_inputs",
     "frame_count",
     "iter_frames",
     "natural_key",
+    "plan_sequences",
+    "read_image",
     "source_fps",
 ]
 
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"})
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm"})
+
+SequenceKind = Literal["video", "folder", "image", "joined"]
 
 
 @dataclass(frozen=True)
@@ -35,52 +51,142 @@ class FrameItem:
     error: str | None = None
 
 
+@dataclass(frozen=True)
+class FrameSequence:
+    """Frames that belong together (one tracker, one trust state).
+
+    label: unique name of the sequence in a run (a video's or image's file name, a folder's name);
+    kind: ``video``, ``folder``, ``image`` (a loose image) or ``joined`` (inputs run as one);
+    files: the files, in order.
+    """
+
+    label: str
+    kind: SequenceKind
+    files: tuple[Path, ...]
+
+    def __post_init__(self) -> None:
+        if not self.files:
+            raise ValueError(f"sequence {self.label!r} has no files")
+
+    @property
+    def has_video(self) -> bool:
+        return any(is_video(f) for f in self.files)
+
+
+def is_video(path: Path) -> bool:
+    return path.suffix.lower() in VIDEO_SUFFIXES
+
+
 def natural_key(path: Path) -> list[object]:
     """Sort key that orders frame_2 before frame_10."""
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
 
 
+def _folder_files(p: Path) -> list[Path]:
+    inner = [f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES]
+    if not inner:
+        raise ValueError(f"input folder {p} holds no images or videos")
+    return sorted(inner, key=natural_key)
+
+
+def _check_exists(p: Path) -> None:
+    if not p.exists():
+        raise ValueError(f"input {p} does not exist (expected image files, a folder of frames or a video)")
+    if not (p.is_file() or p.is_dir()):
+        raise ValueError(f"input {p} is neither a file nor a folder")
+
+
 def expand_inputs(inputs: list[str | Path]) -> list[Path]:
     """The files the inputs name: files as given, folders as their images and videos in natural order."""
-    inputs = [Path(p) for p in inputs]
     files: list[Path] = []
-    for p in inputs:
-        if p.is_dir():
-            inner = [f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES]
-            if not inner:
-                raise ValueError(f"input folder {p} holds no images or videos")
-            files.extend(sorted(inner, key=natural_key))
-        elif p.exists():
-            files.append(p)
-        else:
-            raise ValueError(f"input {p} does not exist (expected image files, a folder of frames or a video)")
+    for p in map(Path, inputs):
+        _check_exists(p)
+        files.extend(_folder_files(p) if p.is_dir() else [p])
     return files
 
 
-def source_fps(inputs: list[Path], default: float) -> float:
-    """Frame rate of the first video among the inputs, else ``default``."""
+def plan_sequences(inputs: list[str | Path], *, one_sequence: bool = False) -> list[FrameSequence]:
+    """Group the inputs into sequences: each video, each folder of frames (a video inside a
+    folder is a sequence of its own) and each loose image; all as one with ``one_sequence``.
+    Labels are unique: a repeated name gets its parent folder's name, then a number."""
+    raw: list[tuple[Path, SequenceKind, list[Path]]] = []
+    for p in map(Path, inputs):
+        _check_exists(p)
+        if p.is_dir():
+            files = _folder_files(p)
+            images = [f for f in files if not is_video(f)]
+            if images:
+                raw.append((p, "folder", images))
+            raw.extend((f, "video", [f]) for f in files if is_video(f))
+        else:
+            raw.append((p, "video" if is_video(p) else "image", [p]))
+    if one_sequence:
+        files = [f for _, _, fs in raw for f in fs]
+        return [FrameSequence("joined", "joined", tuple(files))]
+    names = [p.resolve().name or str(p) for p, _, _ in raw]
+    used: set[str] = set()
+    out = []
+    for (p, kind, files), name in zip(raw, names, strict=True):
+        label = name
+        if names.count(name) > 1:
+            label = f"{p.resolve().parent.name}-{name}"
+        base, k = label, 2
+        while label in used:
+            label, k = f"{base}-{k}", k + 1
+        used.add(label)
+        out.append(FrameSequence(label, kind, tuple(files)))
+    return out
+
+
+@contextlib.contextmanager
+def quiet_stderr() -> Iterator[None]:
+    """Silence messages that C libraries (FFmpeg, libjpeg) write straight to file descriptor 2."""
+    fd = 2  # the C libraries write to the descriptor, whatever Python's sys.stderr is
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        sys.stderr.flush()
+    try:
+        saved = os.dup(fd)
+    except OSError:  # no descriptor 2: nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+def _video_property(path: Path, prop: str) -> float:
     import cv2
 
-    for f in expand_inputs(inputs):
-        if f.suffix.lower() in VIDEO_SUFFIXES:
-            cap = cv2.VideoCapture(str(f))
-            fps = cap.get(cv2.CAP_PROP_FPS)
+    with quiet_stderr():
+        cap = cv2.VideoCapture(str(path))
+        try:
+            return float(cap.get(getattr(cv2, prop))) if cap.isOpened() else -1.0
+        finally:
             cap.release()
-            if fps and fps > 0:
-                return float(fps)
+
+
+def source_fps(inputs: list[str | Path], default: float) -> float:
+    """Frame rate of the first video among the inputs, else ``default``."""
+    for f in expand_inputs(inputs):
+        if is_video(f):
+            fps = _video_property(f, "CAP_PROP_FPS")
+            if fps > 0:
+                return fps
     return default
 
 
 def frame_count(inputs: list[str | Path]) -> int | None:
     """Number of frames the inputs hold (None if a video does not say), without decoding images."""
-    import cv2
-
     n = 0
     for f in expand_inputs(inputs):
-        if f.suffix.lower() in VIDEO_SUFFIXES:
-            cap = cv2.VideoCapture(str(f))
-            k = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 1
-            cap.release()
+        if is_video(f):
+            k = int(_video_property(f, "CAP_PROP_FRAME_COUNT"))
+            if k == -1:  # cannot be opened: reported as one unreadable frame
+                k = 1
             if k <= 0:
                 return None
             n += k
@@ -89,31 +195,76 @@ def frame_count(inputs: list[str | Path]) -> int | None:
     return n
 
 
-def iter_frames(inputs: list[str | Path]) -> Iterator[FrameItem]:
-    """Frames of all inputs in order; an unreadable one is yielded with ``frame=None`` and the reason."""
+def read_image(path: Path) -> tuple[NDArray[np.uint8] | None, str | None]:
+    """RGB pixels of an image file, or (None, reason) when it cannot be decoded completely.
+
+    Pillow decodes the file first and refuses truncated or corrupt data (OpenCV would return the
+    decoded part and grey for the rest); OpenCV then reads it (with EXIF orientation)."""
+    import cv2
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        return None, f"cannot read image {path}: {exc.strerror or exc}"
+    if size == 0:
+        return None, f"cannot read image {path}: the file is empty"
+    try:
+        with Image.open(path) as im:
+            im.load()
+    except UnidentifiedImageError:
+        pass  # not a format Pillow knows: OpenCV decides below
+    except (OSError, ValueError, SyntaxError) as exc:
+        return None, f"cannot read image {path}: corrupt or truncated ({exc})"
+    with quiet_stderr():
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        return None, f"cannot read image {path}: not an image file OpenCV can decode"
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), None
+
+
+def _video_frames(f: Path, index: int) -> Iterator[FrameItem]:
     import cv2
 
-    index = 0
-    for f in expand_inputs(inputs):
-        if f.suffix.lower() in VIDEO_SUFFIXES:
-            cap = cv2.VideoCapture(str(f))
-            if not cap.isOpened():
-                yield FrameItem(f.name, index, None, f"cannot open video {f}")
-                index += 1
-                continue
-            k = 0
-            while True:
+    with quiet_stderr():
+        cap = cv2.VideoCapture(str(f))
+    if not cap.isOpened():
+        cap.release()
+        yield FrameItem(f.name, index, None, f"cannot open video {f} (not a video, or a codec OpenCV lacks)")
+        return
+    k = 0
+    try:
+        while True:
+            with quiet_stderr():
                 ok, bgr = cap.read()
-                if not ok:
-                    break
-                yield FrameItem(f"{f.name}#{k}", index, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
-                index += 1
-                k += 1
-            cap.release()
+            if not ok:
+                break
+            yield FrameItem(f"{f.name}#{k}", index + k, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+            k += 1
+    finally:
+        cap.release()
+    if k == 0:
+        yield FrameItem(f.name, index, None, f"video {f} holds no frame that can be decoded")
+
+
+def iter_sequence(files: tuple[Path, ...] | list[Path]) -> Iterator[FrameItem]:
+    """Frames of the given files in order, indexed from 0; an unreadable one is yielded with
+    ``frame=None`` and the reason."""
+    index = 0
+    for f in files:
+        if is_video(f):
+            last = index - 1
+            for item in _video_frames(f, index):
+                last = item.index
+                yield item
+            index = last + 1
             continue
-        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if bgr is None:
-            yield FrameItem(f.name, index, None, f"cannot read image {f}")
-        else:
-            yield FrameItem(f.name, index, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        rgb, error = read_image(f)
+        yield FrameItem(f.name, index, rgb, error)
         index += 1
+
+
+def iter_frames(inputs: list[str | Path]) -> Iterator[FrameItem]:
+    """Frames of all inputs in order (as one sequence); an unreadable one is yielded with
+    ``frame=None`` and the reason."""
+    yield from iter_sequence(expand_inputs(inputs))

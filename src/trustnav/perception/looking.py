@@ -23,6 +23,7 @@ __all__ = ["LOOKING_URL", "LookingModel", "load_torch_state_dict", "normalise_ke
 
 LOOKING_URL = "https://github.com/vita-epfl/looking/raw/main/models/predictor/LookingModel_LOOK%2BPIE.p"
 WEIGHTS_NAME = "LookingModel_LOOK+PIE.p"
+WEIGHTS_HINT = "pass --looking-weights FILE (Python: LookingModel.from_file(FILE)) or set TRUSTNAV_LOOKING_WEIGHTS"
 _DTYPES = {"FloatStorage": np.float32, "DoubleStorage": np.float64, "LongStorage": np.int64, "IntStorage": np.int32}
 BN_EPS = 1e-5  # torch.nn.BatchNorm1d default
 
@@ -70,7 +71,9 @@ def load_torch_state_dict(path: str | Path) -> dict[str, NDArray]:
     try:
         archive = zipfile.ZipFile(path)
     except (OSError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: not a readable zip-format torch weights file ({exc})") from exc
+        raise ValueError(
+            f"LOOKING weights {path}: not a readable zip-format torch weights file ({exc}); {WEIGHTS_HINT}"
+        ) from None
     with archive:
         pkl = [n for n in archive.namelist() if n.endswith("data.pkl")]
         if len(pkl) != 1:
@@ -83,15 +86,8 @@ def load_torch_state_dict(path: str | Path) -> dict[str, NDArray]:
     return dict(state)
 
 
-def resolve_weights(path: str | Path | None = None, *, download: bool = True) -> Path:
-    """Find the LOOKING weights: ``path``; $TRUSTNAV_LOOKING_WEIGHTS; ``../shared/models/looking/``
-    (development checkout); the user cache (~/.cache/trustnav). If none has the file and
-    ``download`` is true, fetch it once from its public URL into the cache, saying so."""
-    if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise FileNotFoundError(f"LOOKING weights not found at {p}")
-        return p
+def _candidates() -> tuple[list[Path], Path]:
+    """Where the weights are looked for, in order, and the cache they are downloaded to."""
     candidates = []
     if os.environ.get("TRUSTNAV_LOOKING_WEIGHTS"):
         candidates.append(Path(os.environ["TRUSTNAV_LOOKING_WEIGHTS"]))
@@ -100,19 +96,49 @@ def resolve_weights(path: str | Path | None = None, *, download: bool = True) ->
         candidates.append(root.parent / "shared" / "models" / "looking" / WEIGHTS_NAME)
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "trustnav" / WEIGHTS_NAME
     candidates.append(cache)
+    return candidates, cache
+
+
+def _download(url: str, dest: Path, timeout: float = 30.0) -> None:
+    """Fetch ``url`` into ``dest`` (through a .part file, so a failed download leaves nothing)."""
+    tmp = dest.with_suffix(".part")
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        with urllib.request.urlopen(url, timeout=timeout) as resp, open(tmp, "wb") as fh:
+            while chunk := resp.read(1 << 16):
+                fh.write(chunk)
+        tmp.replace(dest)
+    except (OSError, ValueError) as exc:  # URLError, HTTPError and timeouts are OSErrors
+        tmp.unlink(missing_ok=True)
+        reason = getattr(exc, "reason", None) or exc
+        raise FileNotFoundError(
+            f"LOOKING eye-contact weights not found locally and the download from {url} failed ({reason}); "
+            f"{WEIGHTS_HINT}"
+        ) from None
+
+
+def resolve_weights(path: str | Path | None = None, *, download: bool = True) -> Path:
+    """Find the LOOKING weights: ``path``; $TRUSTNAV_LOOKING_WEIGHTS; ``../shared/models/looking/``
+    (development checkout); the user cache (~/.cache/trustnav). If none has the file and
+    ``download`` is true, fetch it once from its public URL into the cache, saying so.
+    Raises FileNotFoundError with a one-line hint when the file cannot be had."""
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            what = "a folder, not a file" if p.is_dir() else "no such file"
+            raise FileNotFoundError(f"LOOKING weights not found at {p} ({what}; expected the file {WEIGHTS_NAME})")
+        return p
+    candidates, cache = _candidates()
     for c in candidates:
         if c.is_file():
             return c
     if not download:
         raise FileNotFoundError(
             f"LOOKING weights not found (looked in {', '.join(str(c) for c in candidates[:2])}, ..., {cache}); "
-            f"pass a path or allow the download from {LOOKING_URL}"
+            f"{WEIGHTS_HINT}, or allow the download from {LOOKING_URL}"
         )
     print(f"trustnav: downloading the LOOKING eye-contact weights (1.7 MB) once to {cache}", file=sys.stderr)
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    tmp = cache.with_suffix(".part")
-    urllib.request.urlretrieve(LOOKING_URL, tmp)
-    tmp.replace(cache)
+    _download(LOOKING_URL, cache)
     return cache
 
 

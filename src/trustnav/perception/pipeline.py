@@ -13,6 +13,7 @@ import math
 import time as _time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from numbers import Real
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +62,12 @@ class PerceptionPipeline:
         eye_model: LookingModel,
         phone: PhoneClassifier | None = None,
     ) -> None:
+        if not callable(backend):
+            raise ValueError(f"backend must be a pose backend (callable on a frame), got {type(backend).__name__}")
+        if not hasattr(tracker, "update"):
+            raise ValueError(f"tracker must be a PersonTracker, got {type(tracker).__name__}")
+        if not hasattr(eye_model, "predict"):
+            raise ValueError(f"eye_model must be a LookingModel (with predict), got {type(eye_model).__name__}")
         self.backend = backend
         self.tracker = tracker
         self.eye_model = eye_model
@@ -110,9 +117,9 @@ def _num(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), 4)
 
 
-def _record(name: str, tp: TrackedPerson, estimator: TrustEstimator) -> dict:
+def _record(name: str, tp: TrackedPerson, estimator: TrustEstimator, sequence: str | None = None) -> dict:
     st = estimator.tracks[tp.track_id]
-    return {
+    rec = {
         "frame": name,
         "track_id": tp.track_id,
         "bbox": [round(float(v), 1) for v in tp.person.bbox],
@@ -125,6 +132,9 @@ def _record(name: str, tp: TrackedPerson, estimator: TrustEstimator) -> dict:
         "score": _num(st.score),
         "trust": _num(st.trust),
     }
+    if sequence is not None:
+        rec["sequence"] = sequence
+    return rec
 
 
 def estimate(
@@ -133,14 +143,16 @@ def estimate(
     estimator: TrustEstimator,
     fps: float,
     on_error: Callable[[FrameResult], None] | None = None,
+    sequence: str | None = None,
 ) -> Iterator[FrameResult]:
-    """Run perception and trust over a sequence; frame k is at time k / fps seconds.
+    """Run perception and trust over one sequence; frame k is at time k / fps seconds.
 
     A frame that cannot be read, or on which perception fails, yields a FrameResult with ``error``
-    set (and is passed to ``on_error``); the sequence goes on.
+    set (and is passed to ``on_error``); the sequence goes on. With ``sequence`` every record
+    carries it (the sequence's label).
     """
-    if not fps > 0:
-        raise ValueError(f"fps must be positive, got {fps!r}")
+    if isinstance(fps, bool) or not isinstance(fps, Real) or not 0 < fps < math.inf:
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}")
     for item in frames:
         t = item.index / fps
         result = FrameResult(item.name, item.index, t, rgb=item.frame)
@@ -149,12 +161,12 @@ def estimate(
         else:
             try:
                 result.people = pipeline(item.frame)
-            except (ValueError, RuntimeError) as exc:
-                result.error = f"perception failed on {item.name}: {exc}"
-        if result.error is None:
-            estimator.update(pipeline.observations(result.people, t), time=t)
-            result.records = [_record(item.name, tp, estimator) for tp in result.people]
-            result.timing = dict(pipeline.last_timing)
-        elif on_error is not None:
+                estimator.update(pipeline.observations(result.people, t), time=t)
+                result.records = [_record(item.name, tp, estimator, sequence) for tp in result.people]
+                result.timing = dict(pipeline.last_timing)
+            except Exception as exc:  # one bad frame never stops the sequence
+                result.people, result.records = [], []
+                result.error = f"perception failed on {item.name}: {type(exc).__name__}: {exc}"
+        if result.error is not None and on_error is not None:
             on_error(result)
         yield result

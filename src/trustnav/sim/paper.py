@@ -10,6 +10,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
+from numbers import Integral, Real
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +22,11 @@ from trustnav.control import (
     MpcConfig,
     MpcController,
     SingleIntegrator,
-    SlsqpSolver,
     SolveStatus,
-    SqpSolver,
     VelocityTrackingCost,
 )
+from trustnav.control.barrier import TIMINGS
+from trustnav.control.solvers import make_solver
 from trustnav.trust import GammaParams
 
 __all__ = [
@@ -43,11 +44,39 @@ __all__ = [
 SCENARIOS = ("paper-1", "paper-2", "paper-3")
 
 
+def _number(name: str, value: object, *, positive: bool = False, integer: bool = False) -> float:
+    """``value`` as a finite float (an int with ``integer``), else ValueError naming ``name``."""
+    kind = "an integer" if integer else "a number"
+    if isinstance(value, bool) or not isinstance(value, Integral if integer else Real):
+        raise ValueError(f"{name} must be {kind}, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (positive and not v > 0):
+        what = f"{'a positive' if positive else 'a finite'} {'integer' if integer else 'number'}"
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return int(v) if integer else v
+
+
+def _pair(name: str, value: object) -> tuple[float, float]:
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:  # type: ignore[arg-type]
+        raise ValueError(f"{name} must be 2 numbers [x, y], got {value!r}")
+    return (_number(f"{name}[0]", value[0]), _number(f"{name}[1]", value[1]))  # type: ignore[index]
+
+
 @dataclass(frozen=True)
 class Pedestrian:
+    """A pedestrian of a scenario: start position (m), constant velocity (m/s), trust in [0, 1]."""
+
     position: tuple[float, float]
     velocity: tuple[float, float] = (0.0, 0.0)
     trust: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", _pair("pedestrian position", self.position))
+        object.__setattr__(self, "velocity", _pair("pedestrian velocity", self.velocity))
+        t = _number("pedestrian trust", self.trust)
+        if not 0.0 <= t <= 1.0:
+            raise ValueError(f"pedestrian trust must lie in [0, 1], got {self.trust!r}")
+        object.__setattr__(self, "trust", t)
 
 
 @dataclass(frozen=True)
@@ -77,12 +106,44 @@ class PaperScenario:
     notes: str = ""
 
     def __post_init__(self) -> None:
-        if not self.pedestrians:
-            raise ValueError(f"scenario {self.name}: needs at least one pedestrian")
-        if not self.horizons or any(h < 1 for h in self.horizons):
-            raise ValueError(f"scenario {self.name}: horizons must be integers >= 1, got {self.horizons}")
-        if any(not 0 <= t <= 1 for t in self.trust_sweep):
-            raise ValueError(f"scenario {self.name}: trust_sweep values must lie in [0, 1]")
+        try:
+            self._validate()
+        except ValueError as exc:
+            raise ValueError(f"scenario {self.name}: {exc}") from None
+
+    def _validate(self) -> None:
+        for key in ("name", "title", "notes"):
+            if not isinstance(getattr(self, key), str):
+                raise ValueError(f"{key} must be a string, got {getattr(self, key)!r}")
+        setf = object.__setattr__
+        for key in ("ego_start", "goal", "world_size"):
+            setf(self, key, _pair(key, getattr(self, key)))
+        if not isinstance(self.pedestrians, tuple) or not self.pedestrians:
+            raise ValueError("needs at least one pedestrian")
+        if not all(isinstance(p, Pedestrian) for p in self.pedestrians):
+            raise ValueError("pedestrians must be Pedestrian objects")
+        if isinstance(self.horizons, (str, bytes)) or not self.horizons:
+            raise ValueError(f"horizons must be integers >= 1, got {self.horizons!r}")
+        hs = tuple(_number("horizons", h, integer=True) for h in self.horizons)
+        if any(h < 1 for h in hs):
+            raise ValueError(f"horizons must be integers >= 1, got {self.horizons!r}")
+        setf(self, "horizons", hs)
+        ts = tuple(_number("trust_sweep", t) for t in self.trust_sweep)
+        if any(not 0 <= t <= 1 for t in ts):
+            raise ValueError(f"trust_sweep values must lie in [0, 1], got {self.trust_sweep!r}")
+        setf(self, "trust_sweep", ts)
+        for key in ("control_equal_trust", "compare_timings"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"{key} must be true or false, got {getattr(self, key)!r}")
+        for key in ("dt", "safety_radius", "reference_gain", "reference_v_max", "u_max", "goal_tolerance"):
+            setf(self, key, _number(key, getattr(self, key), positive=True))
+        setf(self, "max_steps", _number("max_steps", self.max_steps, positive=True, integer=True))
+        if self.reference_mode not in ("rollout", "hold"):
+            raise ValueError(f"reference_mode must be 'rollout' or 'hold', got {self.reference_mode!r}")
+        if self.timing not in TIMINGS:
+            raise ValueError(f"timing must be one of {', '.join(TIMINGS)}, got {self.timing!r}")
+        if not isinstance(self.gamma, GammaParams):
+            raise ValueError(f"gamma must be GammaParams, got {self.gamma!r}")
 
     def config(self, horizon: int | None = None, timing: str | None = None) -> MpcConfig:
         return MpcConfig(
@@ -100,19 +161,42 @@ class PaperScenario:
 
 def _scenario_from_dict(d: dict[str, Any]) -> PaperScenario:
     d = dict(d)
-    peds = tuple(
-        Pedestrian(tuple(p["position"]), tuple(p.get("velocity", (0.0, 0.0))), float(p.get("trust", 1.0)))
-        for p in d.pop("pedestrian")
-    )
+    where = f"scenario {d.get('name', '(no name)')}"
+    raw = d.pop("pedestrian", None)
+    if not isinstance(raw, list) or not raw or not all(isinstance(p, dict) for p in raw):
+        raise ValueError(f"{where}: needs [[pedestrian]] tables, each with a position = [x, y]")
+    peds = []
+    for i, p in enumerate(raw):
+        extra = set(p) - {"position", "velocity", "trust"}
+        if extra or "position" not in p:
+            raise ValueError(f"{where}: pedestrian {i + 1} needs position = [x, y] (and optionally velocity, "
+                             f"trust), got keys {sorted(p)}")  # fmt: skip
+        try:
+            peds.append(Pedestrian(p["position"], p.get("velocity", (0.0, 0.0)), p.get("trust", 1.0)))
+        except ValueError as exc:
+            raise ValueError(f"{where}: pedestrian {i + 1}: {exc}") from None
     g = d.pop("gamma", {})
-    known = set(PaperScenario.__dataclass_fields__)
-    unknown = set(d) - known
+    if not isinstance(g, dict):
+        raise ValueError(f"{where}: [gamma] must be a table with gamma_ini, delta, lam")
+    fields = PaperScenario.__dataclass_fields__
+    unknown = set(d) - set(fields)
     if unknown:
-        raise ValueError(f"scenario {d.get('name')}: unknown keys {sorted(unknown)}")
-    for key in ("ego_start", "goal", "horizons", "trust_sweep", "world_size"):
+        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
+    missing = {"name", "title", "ego_start", "goal"} - set(d)
+    if missing:
+        raise ValueError(f"{where}: missing keys {sorted(missing)}")
+    for key in ("horizons", "trust_sweep"):
+        if key in d and not isinstance(d[key], list):
+            raise ValueError(f"{where}: {key} must be a list, got {d[key]!r}")
         if key in d:
             d[key] = tuple(d[key])
-    return PaperScenario(pedestrians=peds, gamma=GammaParams(**g), **d)
+    try:
+        gamma_params = GammaParams(**g)
+    except TypeError:
+        raise ValueError(f"{where}: [gamma] takes gamma_ini, delta, lam, got keys {sorted(g)}") from None
+    except ValueError as exc:
+        raise ValueError(f"{where}: [gamma] {exc}") from None
+    return PaperScenario(pedestrians=tuple(peds), gamma=gamma_params, **d)
 
 
 def load_scenario(name_or_path: str | Path) -> PaperScenario:
@@ -124,7 +208,11 @@ def load_scenario(name_or_path: str | Path) -> PaperScenario:
         text = resources.files("trustnav.sim").joinpath(f"scenarios/{name_or_path}.toml").read_text()
     else:
         raise ValueError(f"unknown scenario {name_or_path!r}: expected one of {SCENARIOS} or a .toml file")
-    return _scenario_from_dict(tomllib.loads(text))
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"scenario file {name_or_path}: not valid TOML ({exc})") from None
+    return _scenario_from_dict(data)
 
 
 @dataclass
@@ -159,7 +247,7 @@ def run_episode(
     """Closed loop: each step solve `proposed`, apply u(t) exactly (no latency), move pedestrians."""
     cfg = scenario.config(horizon, timing)
     model = SingleIntegrator(u_max=scenario.u_max)
-    slv = SlsqpSolver() if solver == "slsqp" else SqpSolver()
+    slv = make_solver(solver)
     ctl = MpcController(model, scenario.cost(), cfg, slv)
     tr = np.array([p.trust for p in scenario.pedestrians] if trusts is None else trusts, dtype=float)
     peds = np.array([p.position for p in scenario.pedestrians], dtype=float)

@@ -22,12 +22,13 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from numbers import Integral
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.trust import traits as tr
-from trustnav.trust.params import PAPER_TRUST, TrustParams
+from trustnav.trust.params import PAPER_TRUST, TrustParams, as_number
 
 __all__ = ["Observation", "TrackState", "TrustEstimator"]
 
@@ -44,10 +45,31 @@ class Observation:
     bbox: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
-        if not math.isfinite(self.time):
+        if isinstance(self.track_id, bool) or not isinstance(self.track_id, Integral):
+            raise ValueError(f"observation track_id must be an integer, got {self.track_id!r}")
+        object.__setattr__(self, "track_id", int(self.track_id))
+        t = as_number("observation time", self.time)
+        if not math.isfinite(t):
             raise ValueError(f"observation time must be finite seconds, got {self.time!r}")
+        object.__setattr__(self, "time", t)
+        for name in ("c_smartphone", "c_eye"):
+            c = getattr(self, name)
+            if c is not None:
+                c = as_number(name, c)
+                if not 0.0 <= c <= 1.0:
+                    raise ValueError(f"{name} must be a confidence in [0, 1] (or None), got {getattr(self, name)!r}")
+                object.__setattr__(self, name, c)
         if (self.keypoints is None) != (self.bbox is None):
             raise ValueError("keypoints and bbox must be given together (pose fluctuation needs both)")
+        if self.keypoints is not None:
+            kp = np.asarray(self.keypoints, dtype=float)
+            box = np.asarray(self.bbox, dtype=float)
+            if kp.ndim != 2 or kp.shape[1] != 2 or box.shape != (4,):
+                raise ValueError(
+                    f"keypoints must be (K, 2) and bbox [x1, y1, x2, y2], got shapes {kp.shape} and {box.shape}"
+                )
+            object.__setattr__(self, "keypoints", kp)
+            object.__setattr__(self, "bbox", box)
 
 
 @dataclass
@@ -75,7 +97,9 @@ class TrustEstimator:
     """Aggregates per-track trust over time (`lin_comb`, `agg_trust`, trait updates)."""
 
     def __init__(self, params: TrustParams = PAPER_TRUST, keep_time: float = 2.0) -> None:
-        if not keep_time >= 0:
+        if not isinstance(params, TrustParams):
+            raise ValueError(f"params must be a TrustParams (e.g. PAPER_TRUST), got {type(params).__name__}")
+        if not as_number("keep_time", keep_time) >= 0:
             raise ValueError(f"keep_time must be >= 0 seconds, got {keep_time!r}")
         self.params = params
         self.keep_time = float(keep_time)
@@ -136,6 +160,8 @@ class TrustEstimator:
 
     def update(self, observations: Iterable[Observation], time: float | None = None) -> dict[int, TrackState]:
         """Apply a frame's observations, then forget tracks unseen for longer than keep_time."""
+        if time is not None:
+            time = as_number("time", time)
         latest = -math.inf
         for obs in observations:
             self.observe(obs)
@@ -147,6 +173,7 @@ class TrustEstimator:
 
     def prune(self, now: float) -> list[int]:
         """Forget tracks last seen more than keep_time before ``now``; returns their ids."""
+        now = as_number("now", now)
         gone = [tid for tid, st in self._tracks.items() if now - st.last_seen > self.keep_time]
         for tid in gone:
             del self._tracks[tid]

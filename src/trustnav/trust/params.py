@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from numbers import Real
 
 __all__ = [
     "MOVING_AVERAGE_TRUST",
@@ -15,13 +16,23 @@ __all__ = [
 ]
 
 
-def _check_range(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False) -> None:
-    if not isinstance(value, (int, float)) or math.isnan(value):
+def as_number(name: str, value: object) -> float:
+    """``value`` as a float if it is a real number (Python or numpy, not bool), else ValueError."""
+    if isinstance(value, bool) or not isinstance(value, Real):
         raise ValueError(f"{name} must be a number, got {value!r}")
-    ok = (value > lo if lo_open else value >= lo) and value <= hi
+    v = float(value)
+    if math.isnan(v):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    return v
+
+
+def _check_range(name: str, value: object, lo: float, hi: float, *, lo_open: bool = False) -> float:
+    v = as_number(name, value)
+    ok = (v > lo if lo_open else v >= lo) and v <= hi
     if not ok:
         left = "(" if lo_open else "["
         raise ValueError(f"{name} must lie in {left}{lo}, {hi}], got {value!r}")
+    return v
 
 
 @dataclass(frozen=True)
@@ -46,25 +57,22 @@ class TrustParams:
     beta0: float = 0.55
 
     def __post_init__(self) -> None:
-        rho = tuple(float(r) for r in self.rho)
-        if len(rho) != 3:
-            raise ValueError(f"rho must have 3 weights (smartphone, eye contact, pose), got {len(rho)}")
-        for i, r in enumerate(rho):
-            _check_range(f"rho[{i}]", r, 0.0, 1.0)
+        if isinstance(self.rho, (str, bytes)) or not hasattr(self.rho, "__len__") or len(self.rho) != 3:
+            raise ValueError(f"rho must have 3 weights (smartphone, eye contact, pose) summing to 1, got {self.rho!r}")
+        rho = tuple(_check_range(f"rho[{i}]", r, 0.0, 1.0) for i, r in enumerate(self.rho))
         if abs(sum(rho) - 1.0) > 1e-9:
             raise ValueError(f"rho must sum to 1 (lin_comb), got sum {sum(rho):.6g} for {rho}")
         object.__setattr__(self, "rho", rho)
         # The paper states nu_i, nu_0i in (0, 1]; 0 is accepted for nu1, nu2, nu3 because the
         # paper's own "raw estimate" comparison sets the recursive constants to zero.
-        for name in ("nu1", "nu2", "nu3"):
-            _check_range(name, getattr(self, name), 0.0, 1.0)
+        for name in ("nu1", "nu2", "nu3", "alpha", "beta"):
+            object.__setattr__(self, name, _check_range(name, getattr(self, name), 0.0, 1.0))
         for name in ("nu01", "nu02", "nu03", "beta0"):
-            _check_range(name, getattr(self, name), 0.0, 1.0, lo_open=True)
-        for name in ("alpha", "beta"):
-            _check_range(name, getattr(self, name), 0.0, 1.0)
+            object.__setattr__(self, name, _check_range(name, getattr(self, name), 0.0, 1.0, lo_open=True))
         f = self.fluctuation_sensitivity
-        if not isinstance(f, (int, float)) or not f > 0 or math.isinf(f):
+        if isinstance(f, bool) or not isinstance(f, Real) or not f > 0 or math.isinf(f):
             raise ValueError(f"fluctuation_sensitivity (F in pose_conf) must be a positive number, got {f!r}")
+        object.__setattr__(self, "fluctuation_sensitivity", float(f))
 
 
 @dataclass(frozen=True)
@@ -80,15 +88,17 @@ class GammaParams:
     lam: float = 1.5
 
     def __post_init__(self) -> None:
-        _check_range("gamma_ini", self.gamma_ini, 0.0, 1.0, lo_open=True)
-        _check_range("delta", self.delta, 0.0, 1.0, lo_open=True)
+        object.__setattr__(self, "gamma_ini", _check_range("gamma_ini", self.gamma_ini, 0.0, 1.0, lo_open=True))
+        object.__setattr__(self, "delta", _check_range("delta", self.delta, 0.0, 1.0, lo_open=True))
         if self.gamma_ini + self.delta > 1.0 + 1e-12:
             raise ValueError(
                 f"gamma_ini + delta must be <= 1 (condition after `weight`), got "
                 f"{self.gamma_ini} + {self.delta} = {self.gamma_ini + self.delta}"
             )
-        if not isinstance(self.lam, (int, float)) or not self.lam >= 1.0 or math.isinf(self.lam):
-            raise ValueError(f"lam (lambda in `weight`) must be a finite number >= 1, got {self.lam!r}")
+        lam = self.lam
+        if isinstance(lam, bool) or not isinstance(lam, Real) or not lam >= 1.0 or math.isinf(lam):
+            raise ValueError(f"lam (lambda in `weight`) must be a finite number >= 1, got {lam!r}")
+        object.__setattr__(self, "lam", float(lam))
 
 
 #: Section IV (CARLA) values: rho = 0.4/0.5/0.1, nu1 = 0.6, nu01 = 1, nu2 = 0.10, nu02 = 1,

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SKELETON", "annotate", "trust_colour"]
+__all__ = ["SKELETON", "annotate", "place_labels", "trust_colour"]
 
 # COCO 17 limbs
 SKELETON: tuple[tuple[int, int], ...] = (
@@ -29,6 +29,43 @@ def _eye_colour(c: float) -> tuple[int, int, int]:
     return (0, round(255 * min(1.0, 2 * c)), round(255 * min(1.0, 2 * (1 - c))))
 
 
+Rect = tuple[int, int, int, int]  # x1, y1, x2, y2
+
+
+def _overlap(a: Rect, b: Rect) -> int:
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    return max(w, 0) * max(h, 0)
+
+
+def place_labels(boxes: Sequence[Rect], sizes: Sequence[tuple[int, int]], width: int, height: int) -> list[Rect]:
+    """A rectangle per label (its size ``(w, h)``) near its box, placed so that labels overlap each
+    other as little as possible: above the box, then inside its top, below it, inside its bottom,
+    then shifted sideways by a label width; the first free place wins, else the least covered one.
+    Labels are placed top-down in the order of their boxes' tops."""
+    placed: list[Rect | None] = [None] * len(boxes)
+    taken: list[Rect] = []
+    for i in sorted(range(len(boxes)), key=lambda k: (boxes[k][1], boxes[k][0])):
+        x1, y1, x2, y2 = boxes[i]
+        w, h = sizes[i]
+        ys = [y1 - h - 1, y1 + 1, y2 + 1, y2 - h - 1]
+        xs = [x1, x2 - w, x1 - w - 1, x2 + 1]
+        best: tuple[int, int, Rect] | None = None
+        for order, (x, y) in enumerate((x, y) for x in xs for y in ys):
+            x = min(max(x, 0), max(width - w, 0))
+            y = min(max(y, 0), max(height - h, 0))
+            r = (x, y, x + w, y + h)
+            cover = sum(_overlap(r, t) for t in taken)
+            if best is None or (cover, order) < best[:2]:
+                best = (cover, order, r)
+            if cover == 0:
+                break
+        assert best is not None
+        placed[i] = best[2]
+        taken.append(best[2])
+    return [r for r in placed if r is not None]
+
+
 def annotate(
     frame_rgb: NDArray[np.uint8],
     records: Sequence[dict],
@@ -36,12 +73,15 @@ def annotate(
     phone_labels: Sequence[str],
 ) -> NDArray[np.uint8]:
     """BGR image with, per person: box coloured by trust with 'id trust phone', skeleton coloured by
-    eye contact. ``records`` are the rows of tracks.csv for this frame, in the order of ``keypoints``."""
+    eye contact. ``records`` are the rows of tracks.csv for this frame, in the order of ``keypoints``.
+    Labels are placed so that neighbouring people's labels stay readable (:func:`place_labels`)."""
     import cv2
 
     img = cv2.cvtColor(frame_rgb, cv2.COLOR_RGB2BGR)
     scale = max(1.0, img.shape[0] / 480)
     thick = max(1, round(scale))
+    size = 0.4 * scale
+    boxes, texts, sizes = [], [], []
     for rec, kp, label in zip(records, keypoints, phone_labels, strict=True):
         x1, y1, x2, y2 = (round(v) for v in rec["bbox"])
         colour = trust_colour(rec["trust"])
@@ -52,9 +92,15 @@ def annotate(
                 cv2.line(img, (round(pa[0]), round(pa[1])), (round(pb[0]), round(pb[1])), eye, thick, cv2.LINE_AA)
         cv2.rectangle(img, (x1, y1), (x2, y2), colour, thick + 1)
         text = f"{rec['track_id']} {rec['trust']:.2f} {label}"
-        size = 0.4 * scale
-        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
-        ty = max(th + 2, y1 - 3)
-        cv2.rectangle(img, (x1, ty - th - 2), (x1 + tw + 2, ty + 2), colour, -1)
-        cv2.putText(img, text, (x1 + 1, ty), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255), thick, cv2.LINE_AA)
+        (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
+        boxes.append((x1, y1, x2, y2))
+        texts.append((text, colour, base))
+        sizes.append((tw + 4, th + base + 3))
+    # labels last, over every box and skeleton, each at a free place near its own box
+    for (text, colour, base), (lx1, ly1, lx2, ly2) in zip(
+        texts, place_labels(boxes, sizes, img.shape[1], img.shape[0]), strict=True
+    ):
+        cv2.rectangle(img, (lx1, ly1), (lx2, ly2), colour, -1)
+        cv2.putText(img, text, (lx1 + 2, ly2 - base - 1), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255), thick,
+                    cv2.LINE_AA)  # fmt: skip
     return img

@@ -7,9 +7,13 @@ time and the controller never waits for them: a frame captured at t updates the 
 the control step at t on. Pedestrian positions and velocities for the controller come from the
 world (as in the authors' code), optionally with noise; trust comes only from perception.
 
-:class:`DriveSimulation` steps the world (used by :func:`run_drive` with the MPC in the loop and by
-the Gymnasium environment with any controller); :func:`run_drive` is a pure function of
-(scenario, parameters, seed) that returns a :class:`DriveResult` and writes nothing.
+The world is one implementation of :class:`DriveWorld` (ego state, pedestrian states, what the
+camera sees, apply a command, advance time): :class:`SimWorld` is trustnav's own (bicycle plant with
+actuation latency, constant-velocity pedestrians), ``trustnav.carla_bridge.CarlaWorld`` a CARLA
+server. :class:`DriveSimulation` adds the camera rate, sensing and trust memory to a world (used by
+:func:`drive` with the MPC in the loop and by the Gymnasium environment with any controller);
+:func:`run_drive` is a pure function of (scenario, parameters, seed) that returns a
+:class:`DriveResult` and writes nothing.
 """
 
 from __future__ import annotations
@@ -17,12 +21,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import MpcController, SolveStatus
+from trustnav.sim.driving.body import Appearance, Skeleton
+from trustnav.sim.driving.camera import CameraPose
 from trustnav.sim.driving.sensing import (
     SENSING_MODES,
     FrameReport,
@@ -35,14 +41,107 @@ from trustnav.sim.driving.sensing import (
 )
 from trustnav.sim.driving.world import DriveScenario, VehiclePlant, pedestrian_bodies, pedestrian_states
 
-__all__ = ["DriveResult", "DriveSimulation", "drive_metrics", "run_drive"]
+__all__ = [
+    "DriveResult",
+    "DriveSimulation",
+    "DriveWorld",
+    "SimWorld",
+    "drive",
+    "drive_metrics",
+    "make_sensor",
+    "prepare_scenario",
+    "run_drive",
+]
+
+Bodies = list[tuple[Skeleton, Appearance]]
+
+
+@runtime_checkable
+class DriveWorld(Protocol):
+    """What the drive loop needs from a world, in the scenario's coordinates (metres, x/y ground,
+    yaw rad counter-clockwise from +x; pedestrians in scenario order)."""
+
+    name: str  # "sim", "carla"
+
+    @property
+    def time(self) -> float:
+        """Seconds since the episode started."""
+        ...
+
+    def ego_state(self) -> NDArray[np.float64]:
+        """Ego (x, y, yaw, v)."""
+        ...
+
+    def pedestrian_states(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Positions and velocities (N, 2) now."""
+        ...
+
+    def camera_view(self) -> tuple[CameraPose, Bodies]:
+        """The camera now and each pedestrian's 3-D body, in one frame where the camera model
+        projects as the real camera does (sensing projects the bodies: keypoints, or boxes to
+        associate perception with pedestrians)."""
+        ...
+
+    def frame_image(self) -> NDArray[np.uint8] | None:
+        """The camera's RGB image now, where the world has a camera of its own; else None."""
+        ...
+
+    def send(self, command: ArrayLike) -> None:
+        """Send (steer rad, acceleration m/s^2) to the car."""
+        ...
+
+    def advance(self, duration: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Run the world ``duration`` seconds; (ego states (n, 4), pedestrian positions (n, N, 2))
+        at the n sub-steps it sampled, the last at the new time."""
+        ...
+
+
+class SimWorld:
+    """trustnav's own world: the ego :class:`VehiclePlant` (bicycle, actuation latency, fine
+    sub-steps) and constant-velocity pedestrians posed by body.py."""
+
+    name = "sim"
+
+    def __init__(self, scenario: DriveScenario) -> None:
+        self.scenario = scenario
+        self.plant = VehiclePlant(scenario.vehicle, scenario.initial_state())
+
+    @property
+    def time(self) -> float:
+        return self.plant.time
+
+    def ego_state(self) -> NDArray[np.float64]:
+        return self.plant.state.copy()
+
+    def pedestrian_states(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return pedestrian_states(self.scenario, self.time)
+
+    def camera_view(self) -> tuple[CameraPose, Bodies]:
+        cam = self.scenario.camera.pose(self.plant.state[:2], float(self.plant.state[2]))
+        return cam, pedestrian_bodies(self.scenario, self.time, cam.position)
+
+    def frame_image(self) -> NDArray[np.uint8] | None:
+        return None
+
+    def send(self, command: ArrayLike) -> None:
+        self.plant.send(command)
+
+    def advance(self, duration: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        t0 = self.plant.time
+        sub = self.plant.advance(duration)
+        sub_t = t0 + np.arange(1, len(sub) + 1) * (duration / len(sub))
+        sc = self.scenario
+        p0 = np.array([p.position for p in sc.pedestrians])
+        v0 = np.array([p.velocity for p in sc.pedestrians])
+        return sub, p0[None] + sub_t[:, None, None] * v0[None]
 
 
 class DriveSimulation:
-    """The world with its camera, sensing and trust memory, advanced one control period at a time.
+    """A world with its camera rate, sensing and trust memory, advanced one control period at a time.
 
-    ``sensor``: a :class:`KeypointSensor` (default, built from the scenario and seed) or a
-    :class:`RenderSensor`. Randomness (sensing noise, controller-input noise) comes from ``seed``.
+    ``world``: a :class:`DriveWorld` (default :class:`SimWorld` of the scenario). ``sensor``: a
+    :class:`KeypointSensor` (default, built from the scenario and seed) or a :class:`RenderSensor`.
+    Randomness (sensing noise, controller-input noise) comes from ``seed``.
     """
 
     def __init__(
@@ -52,6 +151,7 @@ class DriveSimulation:
         sensor: KeypointSensor | RenderSensor | None = None,
         capture_rate: float | None = None,
         control_rate: float | None = None,
+        world: DriveWorld | None = None,
     ) -> None:
         self.scenario = scenario
         self.seed = seed
@@ -64,23 +164,38 @@ class DriveSimulation:
         if not self.capture_rate > 0 or not self.control_rate > 0:
             raise ValueError("capture_rate and control_rate must be positive")
         self.period = 1.0 / self.control_rate
-        self.plant = VehiclePlant(scenario.vehicle, scenario.initial_state())
+        self.world: DriveWorld = SimWorld(scenario) if world is None else world
+        n, expected = len(self.world.pedestrian_states()[0]), len(scenario.pedestrians)
+        if n != expected:
+            raise ValueError(f"the {self.world.name} world has {n} pedestrians, the scenario {expected}")
         self.trust = TrustTracker(len(scenario.pedestrians), keep_time=scenario.sensing.keep_time)
         self.frames: list[FrameReport] = []
         self._next_capture = 0.0
-        self.time = 0.0
+
+    @property
+    def time(self) -> float:
+        return self.world.time
+
+    @property
+    def plant(self) -> VehiclePlant:
+        """The ego plant of a :class:`SimWorld`."""
+        plant = getattr(self.world, "plant", None)
+        if plant is None:
+            raise AttributeError(f"the {self.world.name} world has no VehiclePlant")
+        return plant
 
     @property
     def state(self) -> NDArray[np.float64]:
         """Ego state (x, y, yaw, v)."""
-        return self.plant.state.copy()
+        return np.asarray(self.world.ego_state(), dtype=float).copy()
 
     def pedestrians(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """True positions and velocities (N, 2) now."""
-        return pedestrian_states(self.scenario, self.time)
+        return self.world.pedestrian_states()
 
     def controller_inputs(self) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """(ego state, pedestrian positions, velocities, trusts) as the controller gets them."""
+        """(ego state, pedestrian positions, velocities, trusts) as the controller gets them: positions
+        and velocities of the same pedestrians in the same (scenario) order as the trusts."""
         pos, vel = self.pedestrians()
         s = self.scenario.sensing
         if s.position_noise > 0:
@@ -95,9 +210,10 @@ class DriveSimulation:
     def capture(self) -> FrameReport:
         """Capture a frame now, perceive it and update the trusts of the pedestrians observed."""
         sc = self.scenario
-        cam = sc.camera.pose(self.plant.state[:2], float(self.plant.state[2]))
-        bodies = pedestrian_bodies(sc, self.time, cam.position)
+        cam, bodies = self.world.camera_view()
         sensed, image, false_pos, timing = self.sensor.sense(cam, bodies)
+        if image is None:
+            image = self.world.frame_image()
         self.trust.update(sensed, self.time)
         by_index = {s.index: s for s in sensed}
         views = []
@@ -120,16 +236,19 @@ class DriveSimulation:
         self._next_capture = len(self.frames) / self.capture_rate
         return report
 
+    def advance_samples(self, command: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Send (steer, accel) to the car and run the world one control period; returns the world's
+        sub-step samples (ego states (n, 4), pedestrian positions (n, N, 2))."""
+        self.world.send(command)
+        return self.world.advance(self.period)
+
     def advance(self, command: ArrayLike) -> NDArray[np.float64]:
-        """Send (steer, accel) to the car and run the world one control period; returns the plant's
+        """Send (steer, accel) to the car and run the world one control period; returns the ego's
         sub-step states."""
-        self.plant.send(command)
-        sub = self.plant.advance(self.period)
-        self.time = self.plant.time
-        return sub
+        return self.advance_samples(command)[0]
 
     def distance_to_goal(self) -> float:
-        return float(np.hypot(*(self.plant.state[:2] - np.asarray(self.scenario.goal))))
+        return float(np.hypot(*(self.state[:2] - np.asarray(self.scenario.goal))))
 
     def reached_goal(self) -> bool:
         return self.distance_to_goal() <= self.scenario.goal_tolerance
@@ -157,6 +276,7 @@ class DriveResult:
     reached_goal: bool
     time_to_goal: float | None
     min_distance_fine: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # over plant sub-steps
+    world: str = "sim"  # which DriveWorld ran it
 
     @property
     def distances(self) -> NDArray[np.float64]:
@@ -219,6 +339,8 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "solve_ms_median": round(float(np.median(st)), 3) if st.size else None,
         "solve_ms_p95": round(float(np.percentile(st, 95)), 3) if st.size else None,
     }
+    if r.world != "sim":
+        out["world"] = r.world
     if r.sensing == "render":
         out["detection_recall"] = round(hits / gt, 4) if gt else None
         out["false_positives"] = int(sum(f.false_positives for f in r.frames))
@@ -251,7 +373,8 @@ def run_drive(
     progress: Callable[[float, float], None] | None = None,
     max_frames: int | None = None,
 ) -> DriveResult:
-    """Drive one episode with the trust-aware MPC in the loop; pure (no files written).
+    """Drive one episode in trustnav's own world with the trust-aware MPC in the loop; pure (no
+    files written).
 
     sensing: "keypoints" (fast) or "render" (needs ``renderer`` with ``.render(camera, people)`` and a
     perception ``pipeline``; see :func:`trustnav.sim.driving.make_render_sensing`). attentive:
@@ -260,20 +383,48 @@ def run_drive(
     rate. progress(t, duration) is called after each control step. max_frames stops capturing
     after that many frames (short tests).
     """
-    if sensing not in SENSING_MODES:
-        raise ValueError(f"sensing must be one of {SENSING_MODES}, got {sensing!r}")
+    sensor = make_sensor(sensing, renderer, pipeline)
+    sc = prepare_scenario(scenario, attentive, control_rate)
+    sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate)
+    return drive(sim, sensing, progress=progress, max_frames=max_frames)
+
+
+def prepare_scenario(
+    scenario: DriveScenario, attentive: bool | None = None, control_rate: float | None = None
+) -> DriveScenario:
+    """The scenario with every pedestrian attentive/distracted (None: as given) and, if given,
+    another control rate."""
     sc = scenario.with_attention(attentive)
     if control_rate is not None:
         sc = replace(sc, control=replace(sc.control, rate=float(control_rate)))
-    sensor = None
-    if sensing == "render":
-        if renderer is None or pipeline is None:
-            raise ValueError("render sensing needs a renderer and a perception pipeline")
-        sensor = RenderSensor(renderer, pipeline)
-    sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate)
+    return sc
+
+
+def make_sensor(sensing: str, renderer: Any = None, pipeline: Any = None) -> RenderSensor | None:
+    """The sensor of a sensing mode: None for "keypoints" (DriveSimulation builds it from its seed),
+    a RenderSensor over ``renderer`` and ``pipeline`` for "render"."""
+    if sensing not in SENSING_MODES:
+        raise ValueError(f"sensing must be one of {SENSING_MODES}, got {sensing!r}")
+    if sensing == "keypoints":
+        return None
+    if renderer is None or pipeline is None:
+        raise ValueError("render sensing needs a renderer and a perception pipeline")
+    return RenderSensor(renderer, pipeline)
+
+
+def drive(
+    sim: DriveSimulation,
+    sensing: str,
+    progress: Callable[[float, float], None] | None = None,
+    max_frames: int | None = None,
+) -> DriveResult:
+    """Run the trust-aware MPC on ``sim`` (any :class:`DriveWorld`) until the goal or the scenario's
+    duration: per control step capture a frame when due, read the controller's inputs, solve, and
+    apply the plan's first input (index 0: the command for now; the controller itself plans from
+    the state predicted ``control.latency`` ahead)."""
+    sc = sim.scenario
     model = sc.vehicle.model()
     ctl = MpcController(model, sc.control.cost(sc.ego_start, sc.goal), sc.control.config())
-    radius_pts = np.array([p.position for p in sc.pedestrians])
     times, ego, peds, trusts = [sim.time], [sim.state], [sim.pedestrians()[0]], [sim.trust.trusts()]
     statuses, fallbacks, slack, solve_times, plans = [], [], [], [], []
     min_fine = np.full(len(sc.pedestrians), np.inf)
@@ -291,11 +442,7 @@ def run_drive(
         slack.append(sol.slack_used)
         solve_times.append(sol.solve_time)
         plans.append(sol.predicted_states)
-        t0 = sim.time
-        sub = sim.advance(sol.control)
-        sub_t = t0 + np.arange(1, len(sub) + 1) * (sim.period / len(sub))
-        p0, v0 = radius_pts, np.array([p.velocity for p in sc.pedestrians])
-        ped_sub = p0[None] + sub_t[:, None, None] * v0[None]
+        sub, ped_sub = sim.advance_samples(sol.control)
         min_fine = np.minimum(min_fine, np.linalg.norm(sub[:, None, :2] - ped_sub, axis=2).min(axis=0))
         times.append(sim.time)
         ego.append(sim.state)
@@ -307,7 +454,7 @@ def run_drive(
     return DriveResult(
         scenario=sc,
         sensing=sensing,
-        seed=seed,
+        seed=sim.seed,
         capture_rate=sim.capture_rate,
         times=np.array(times),
         ego=np.array(ego),
@@ -322,4 +469,5 @@ def run_drive(
         reached_goal=reached,
         time_to_goal=sim.time if reached else None,
         min_distance_fine=min_fine,
+        world=sim.world.name,
     )
