@@ -96,7 +96,7 @@ def test_sqp_and_slsqp_reach_the_same_optimum(maker, seed):
 
 
 def test_controller_accepts_changing_pedestrian_counts():
-    cfg = MpcConfig(horizon=5)
+    cfg = MpcConfig(horizon=5, deadline=10.0)
     ctl = MpcController(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg)
     x = np.array([20.0, 5.0])
     for n_p in (0, 1, 3, 2, 0):
@@ -111,7 +111,7 @@ def test_pedestrian_inside_margin_is_reported_and_not_silent():
     """A pedestrian appearing inside R in front of a fast bicycle: the first CBF row is fixed by the
     current state (no input changes the next position), so it is reported as decided, not hidden;
     the plan brakes and steers."""
-    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5)
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, deadline=10.0)
     ctl = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
     sol = ctl.step([10.0, 0.0, 0.0, 10.0], [[11.5, 0.5]], [[0.0, 0.0]], [0.0])
     # row k = 0: ||(11, 0) - (11.5, 0.5)||^2 - R^2 - (1 - gamma)(||(10, 0) - ped||^2 - R^2), gamma = 0.03

@@ -17,7 +17,7 @@ from trustnav.sim import load_scenario, run_episode
 from trustnav.trust import PAPER_GAMMA_CARLA
 
 ROAD = LaneTrackingCost(start=(0, 0), goal=(80, 0), reference=BoundedProportionalReference(0.5, 8.0))
-CARLA = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, gamma=PAPER_GAMMA_CARLA)
+CARLA = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, gamma=PAPER_GAMMA_CARLA, deadline=10.0)
 
 
 def _drive(ctl, peds, trusts, steps=250, appear=None, x0=(0.0, 0.0, 0.0, 8.0)):
@@ -94,7 +94,7 @@ def test_pedestrian_appearing_inside_margin_relaxes_brakes_and_episode_continues
 
 
 def test_latency_compensation_plans_from_the_predicted_state():
-    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, gamma=PAPER_GAMMA_CARLA, latency=0.1)
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, gamma=PAPER_GAMMA_CARLA, latency=0.1, deadline=10.0)
     ctl = MpcController(KinematicBicycle(), ROAD, cfg)
     x0 = np.array([0.0, 0.0, 0.0, 8.0])
     # before any input is applied the vehicle coasts: 8 m/s * 0.1 s along its heading

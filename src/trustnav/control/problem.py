@@ -356,11 +356,15 @@ class SingleIntegratorProblem(MpcProblem):
     def candidate_starts(self, n_pedestrians: int = 3) -> list[NDArray[np.float64]]:
         """Constant-velocity plans: stop, the reference, and for each binding pedestrian
         backing away, passing on either side, and both diagonals, at the reference speed, half of
-        it and a quarter of the input bound (the CBF rows are non-convex: a pedestrian can be
-        passed on either side, or backed away from)."""
+        it, a quarter of the input bound and the bound, and a dash at the bound that stops after
+        a third of the horizon (the CBF rows are non-convex: a pedestrian can be passed on either
+        side, or backed away from)."""
         starts = [np.zeros((self.n_h, 2)), self.initial_guess()]
         ref = float(np.hypot(*self.ubar[0]))
-        speeds = [s for s in (ref, 0.5 * ref) if s > 1e-6] + [0.25 * float(self.uhi.min())]
+        top = float(self.uhi.min())
+        speeds = [s for s in (ref, 0.5 * ref) if s > 1e-6] + [0.25 * top, top]
+        dash = np.zeros((self.n_h, 1))
+        dash[: max(1, self.n_h // 3)] = 1.0  # full speed for the first third of the horizon, then stop
         for j in self.binding_pedestrians(n_pedestrians):
             away = -self.peds[j]  # ego at the origin
             norm = float(np.hypot(*away))
@@ -369,6 +373,7 @@ class SingleIntegratorProblem(MpcProblem):
             for d in (e, t, -t, (e + t) / np.sqrt(2), (e - t) / np.sqrt(2)):
                 for s in speeds:
                     starts.append(np.clip(np.tile(s * d, (self.n_h, 1)), self.ulo, self.uhi))
+                starts.append(np.clip(dash * (top * d), self.ulo, self.uhi))
         return starts
 
     def cost_np(self, u_flat: ArrayLike) -> float:

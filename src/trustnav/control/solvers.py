@@ -114,6 +114,7 @@ class SqpSolver:
         max_restarts: int = 12,
         row_slack_pedestrians: int = 8,
         slack_budget: int = 56,
+        full_step_iterations: int = 10,
     ) -> None:
         if max_iter < 1 or not tol > 0 or not slack_penalty > 0 or not slack_quadratic > 0:
             raise ValueError("max_iter >= 1, tol > 0, slack_penalty > 0 and slack_quadratic > 0 are required")
@@ -126,6 +127,7 @@ class SqpSolver:
         self.max_restarts = max_restarts
         self.row_slack_pedestrians = row_slack_pedestrians
         self.slack_budget = slack_budget
+        self.full_step_iterations = full_step_iterations
         # one DAQP workspace per (problem class, QP size, mode): problems of different models
         # never share a workspace, so a cached Hessian cannot be reused for another model
         self._models: dict[tuple[str, int, int, bool], daqp.Model] = {}
@@ -245,7 +247,7 @@ class SqpSolver:
         best = _Best()
         seen: list[NDArray[np.float64]] = []  # iterates not yet checked
         slack: tuple[NDArray[np.int64], int] | None = None
-        converged = recovered = deadline_hit = False
+        converged = recovered = deadline_hit = second_chance = False
         restarts = 0
         message = ""
         it = 0
@@ -284,7 +286,9 @@ class SqpSolver:
                 break
             d = step.reshape(u.shape)
             alpha = 1.0
-            if p.nonlinear:
+            if p.nonlinear or it > self.full_step_iterations:
+                # L1-merit backtracking: always for nonlinear models; for the linear model once
+                # full steps have not converged (the non-convex rows can make them cycle)
                 viol0 = float(np.maximum(0.0, -p.g).sum())
                 mu = 10.0 * self.slack_penalty if slack is not None else 1e4
                 merit0 = cost + mu * viol0
@@ -299,6 +303,11 @@ class SqpSolver:
                 # the QP keeps u + d within the input bounds (to DAQP's tolerance)
                 u = u + alpha * d
             if alpha * float(np.abs(d).max()) < self.tol:
+                if slack is not None and not second_chance and float(p.g[p.n_decided :].min()) < -FEAS_TOL:
+                    # the relaxed solve converged near the feasible set: once, try the hard
+                    # rows again from there before accepting the relaxation
+                    second_chance, slack = True, None
+                    continue
                 converged = True
                 break
         # the final iterate, checked exactly
@@ -308,6 +317,11 @@ class SqpSolver:
             if final is not None:
                 best.offer(u, final)
             self._settle(p, best, seen)
+            if best.check.worst > FEAS_TOL and p.m_cbf:  # an exactly feasible candidate beats it
+                p.build(u)
+                for c in p.candidate_starts():
+                    c = np.minimum(np.maximum(c, p.ulo), p.uhi)
+                    best.offer(c, p.evaluate(c))
         elapsed = time.perf_counter() - t0
         if best.u is None and not done:  # nothing finite was ever evaluated
             return SolveResult(u, SolveStatus.FAILED, it, math.nan, math.nan, True, message or "non-finite iterate",

@@ -152,6 +152,9 @@ class PaperScenario:
             safety_radius=self.safety_radius,
             gamma=self.gamma,
             timing=timing or self.timing,  # type: ignore[arg-type]
+            # simulated time is not wall time: a long step deadline keeps an episode a pure
+            # function of the scenario, whatever the machine's load
+            deadline=10.0,
         )
 
     def cost(self) -> VelocityTrackingCost:

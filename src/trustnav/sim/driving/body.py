@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from trustnav.perception.types import COCO_KEYPOINTS
+
 __all__ = [
     "ATTENTIVE_LOOK",
     "COCO_NAMES",
@@ -33,25 +35,7 @@ __all__ = [
     "rot_z",
 ]
 
-COCO_NAMES: tuple[str, ...] = (
-    "nose",
-    "left_eye",
-    "right_eye",
-    "left_ear",
-    "right_ear",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-    "left_hip",
-    "right_hip",
-    "left_knee",
-    "right_knee",
-    "left_ankle",
-    "right_ankle",
-)
+COCO_NAMES: tuple[str, ...] = COCO_KEYPOINTS  # the 17 COCO keypoints, in the perception's order
 POSES = ("attentive", "distracted", "walking")
 
 Colour = tuple[float, float, float]
