@@ -457,7 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--out", required=True, help="output directory (records are appended; a rerun resumes)")
     w.add_argument("--scheduler", help="address of a running Dask scheduler (default: a LocalCluster)")
     w.add_argument("--workers", type=int, help="LocalCluster workers (default: the machine's cores)")
-    w.add_argument("--batch", type=int, help="episodes per Dask task (default: the spec's batch, else 1)")
+    w.add_argument("--batch", type=int, help="episodes per Dask task (default: the spec's batch, else auto)")
     w.add_argument("--retry-failed", action="store_true", help="run recorded failed episodes again")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
     w.set_defaults(func=_sweep)

@@ -228,7 +228,8 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
     Pedestrians move at constant velocity; a pedestrian is given to the controller from its
     appearance step on (a 'sudden' one appears at the distance in its kind ahead of the car).
     With ``check_relaxed`` every step whose plan violates a CBF row is re-checked with
-    :func:`hard_feasible_exists` on the same stage.
+    :func:`hard_feasible_exists` on the same stage. ``ped_min_distance`` / ``ped_trust``: each
+    pedestrian's closest approach (None if never known to the controller) and trust.
     """
     ctl, model = _controller(world)
     cfg = world.config
@@ -236,6 +237,7 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
     peds = world.pedestrians.copy()
     r = cfg.safety_radius
     min_dist = math.inf
+    ped_min = np.full(len(peds), math.inf)  # per pedestrian, over the steps it is known
     times, cpu, statuses = [], [], {}
     relaxed = fallback = recovered = deadline = 0
     relaxed_feasible = relaxed_checked = 0
@@ -266,6 +268,7 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
         if known.any():
             d = np.linalg.norm(peds[known] - x[:2], axis=1)
             min_dist = min(min_dist, float(d.min()))
+            ped_min[known] = np.minimum(ped_min[known], d)
         if np.linalg.norm(x[:2] - world.goal) <= (0.25 if world.family == "single_integrator" else 1.0):
             reached = True
             break
@@ -298,4 +301,6 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
         "step_cpu_ms": ct.tolist() if keep_step_times else None,
         "step_cpu_ms_max": float(ct.max()),
         "final_speed": float(x[3]) if world.family == "bicycle" else None,
+        "ped_min_distance": [float(v) if math.isfinite(v) else None for v in ped_min],  # None: never known
+        "ped_trust": [float(v) for v in world.trusts],
     }

@@ -1,0 +1,175 @@
+"""Campaign figures: minimum distance vs trust, and violation / infeasibility rates vs horizon and
+vs every swept numeric parameter (gamma_ini, delta, lambda of `weight`, trust, ...).
+
+One PNG per sweep and question under ``figures/``; rates carry Wilson 95 % intervals.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from trustnav.campaigns.spec import CampaignSpec
+from trustnav.campaigns.summary import TRUST_BANDS, wilson
+
+__all__ = ["write_figures"]
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: Path) -> bool:
+    pairs = [
+        (t, d)
+        for r in recs
+        for t, d in zip(r.get("ped_trust") or [], r.get("ped_min_distance") or [], strict=False)
+        if t is not None and d is not None
+    ]
+    if not pairs:
+        return False
+    t, d = np.array(pairs).T
+    radius = next((r["safety_radius"] for r in recs if r.get("safety_radius")), None)
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    ax.scatter(
+        t,
+        d,
+        s=6 if len(t) > 200 else 18,
+        alpha=min(0.6, max(0.05, 300 / len(t))),
+        color="tab:blue",
+        lw=0,
+        label="pedestrian",
+    )
+    edges = np.linspace(0, 1, 11)
+    mids, med, lo, hi = [], [], [], []
+    for a, b in itertools.pairwise(edges):
+        sel = d[(t >= a) & ((t < b) | (b == 1.0) & (t <= b))]
+        if sel.size >= 3:
+            mids.append((a + b) / 2)
+            med.append(np.median(sel))
+            lo.append(np.percentile(sel, 10))
+            hi.append(np.percentile(sel, 90))
+    if mids:
+        ax.fill_between(mids, lo, hi, color="tab:orange", alpha=0.25, label="10-90 %")
+        ax.plot(mids, med, "o-", color="tab:orange", label="median")
+    if radius:
+        ax.axhline(radius, color="tab:red", ls="--", lw=1, label=f"R = {radius:g} m")
+    top = np.percentile(d, 98) if d.size > 20 else d.max()
+    ax.set_ylim(0, max(top * 1.1, (radius or 0) * 1.5))
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_xlabel("trust of the pedestrian")
+    ax.set_ylabel("minimum distance to it (m)")
+    ax.set_title(f"{name}: closest approach vs trust ({len(t)} pedestrians, {len(recs)} episodes)", fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+def _rates_vs(name: str, label: str, groups: Mapping[float, Sequence[Mapping[str, Any]]], path: Path) -> bool:
+    xs = sorted(groups)
+    if len(xs) < 2:
+        return False
+    plt = _plt()
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11.5, 3.8), dpi=120)
+    for key, color, text in (
+        ("breach", "tab:red", "margin violation"),
+        ("relaxed", "tab:purple", "infeasible (relaxed step)"),
+    ):
+        rates, err_lo, err_hi = [], [], []
+        for x in xs:
+            ok = [r for r in groups[x] if r.get("status") == "ok"]
+            k = sum(bool(r["breach"]) if key == "breach" else (r["relaxed_steps"] or 0) > 0 for r in ok)
+            p = k / len(ok) if ok else np.nan
+            ci = wilson(k, len(ok)) or (np.nan, np.nan)
+            rates.append(p)
+            err_lo.append(max(0.0, p - ci[0]))
+            err_hi.append(max(0.0, ci[1] - p))
+        dodge = (xs[-1] - xs[0]) * (0.006 if key == "breach" else -0.006)  # both series visible where equal
+        ax.errorbar(np.add(xs, dodge), rates, yerr=[err_lo, err_hi], fmt="o-", color=color, capsize=3, label=text)
+    ax.set_xlabel(label)
+    ax.set_ylabel("share of episodes (95 % CI)")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    med, p05 = [], []
+    for x in xs:
+        md = [r["min_distance"] for r in groups[x] if r.get("status") == "ok" and r.get("min_distance") is not None]
+        med.append(np.median(md) if md else np.nan)
+        p05.append(np.percentile(md, 5) if md else np.nan)
+    ax2.plot(xs, med, "o-", color="tab:blue", label="episode min, median")
+    ax2.plot(xs, p05, "s--", color="tab:blue", alpha=0.6, label="episode min, 5th percentile")
+    for (band_name, lo, hi), color in zip((TRUST_BANDS[0], TRUST_BANDS[2]), ("tab:green", "tab:orange"), strict=True):
+        band = []
+        for x in xs:
+            ds = [
+                d
+                for r in groups[x]
+                if r.get("status") == "ok"
+                for t, d in zip(r.get("ped_trust") or [], r.get("ped_min_distance") or [], strict=False)
+                if t is not None and d is not None and lo <= t < hi
+            ]
+            band.append(np.median(ds) if ds else np.nan)
+        if not np.all(np.isnan(band)):
+            ax2.plot(xs, band, "^:", color=color, label=f"per pedestrian, {band_name} trust, median")
+    radius = next((r["safety_radius"] for g in groups.values() for r in g if r.get("safety_radius")), None)
+    if radius:
+        ax2.axhline(radius, color="tab:red", ls="--", lw=1, label=f"R = {radius:g} m")
+    ax2.set_xlabel(label)
+    ax2.set_ylabel("minimum distance (m)")
+    ax2.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax2.grid(alpha=0.3)
+    n = sum(len(g) for g in groups.values())
+    fig.suptitle(f"{name}: rates and closest approach vs {label} ({n} episodes)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+def write_figures(spec: CampaignSpec, records: Sequence[Mapping[str, Any]], out: str | Path) -> list[Path]:
+    """Write the figures of every sweep under ``out/figures``; return their paths."""
+    fig_dir = Path(out) / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    keys = {t.key for t in spec.tasks()}
+    written: list[Path] = []
+    for s in spec.sweeps:
+        recs = [r for r in records if r["sweep"] == s.name and r["key"] in keys]
+        if not recs:
+            continue
+        ok = [r for r in recs if r.get("status") == "ok"]
+        path = fig_dir / f"{s.name}_min_distance_vs_trust.png"
+        if _min_distance_vs_trust(s.name, ok, path):
+            written.append(path)
+        swept = {n for n, _ in s.grid} | {n for n, _, _ in s.random}
+        by_h: dict[float, list[Mapping[str, Any]]] = defaultdict(list)
+        for r in recs:
+            h = r.get("horizon") if r.get("horizon") is not None else r["params"].get("horizon")
+            if h is not None:
+                by_h[float(h)].append(r)
+        path = fig_dir / f"{s.name}_rates_vs_horizon.png"
+        if _rates_vs(s.name, "horizon N_h", by_h, path):
+            written.append(path)
+        for pname in sorted(swept - {"horizon"}):
+            groups: dict[float, list[Mapping[str, Any]]] = defaultdict(list)
+            for r in recs:
+                v = r["params"].get(pname)
+                if isinstance(v, int | float):  # bools (attentive) as 0 / 1
+                    groups[float(v)].append(r)
+            path = fig_dir / f"{s.name}_rates_vs_{pname}.png"
+            if _rates_vs(s.name, pname, groups, path):
+                written.append(path)
+    return written

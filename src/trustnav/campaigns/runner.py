@@ -1,0 +1,210 @@
+"""Run a campaign on dask.distributed: a LocalCluster over loopback by default, or any scheduler.
+
+Episodes go out as Dask tasks (``batch`` episodes each, :func:`auto_batch` by default), results are appended to
+``records.jsonl`` as they complete, a rerun skips every episode whose key is already recorded,
+a failing episode is a record with its error (never the end of the campaign), and a task lost
+with its worker (Dask retries it elsewhere first) becomes failed records of its episodes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from trustnav.campaigns.episodes import OUTCOME_FIELDS, run_batch
+from trustnav.campaigns.records import RecordStore
+from trustnav.campaigns.spec import CampaignSpec, EpisodeTask
+
+__all__ = ["RunReport", "auto_batch", "dask_client", "run_campaign"]
+
+#: Environment of LocalCluster worker processes: one BLAS / numba thread each (no oversubscription).
+WORKER_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+    "MPLBACKEND": "Agg",
+}
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """What one invocation did: episodes in the spec, already recorded, run now, failed now, wall time."""
+
+    episodes: int
+    skipped: int
+    ran: int
+    failed: int
+    wall_s: float
+    workers: int
+    scheduler: str
+
+    def __post_init__(self) -> None:
+        if min(self.episodes, self.skipped, self.ran, self.failed, self.workers) < 0:
+            raise ValueError("RunReport counts must be >= 0")
+
+
+def _default_workers() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """A connected :class:`distributed.Client`; closes it (and the LocalCluster it made) on exit.
+
+    ``scheduler``: address of a running scheduler (``tcp://host:8786``). Otherwise a LocalCluster
+    of ``workers`` single-threaded worker processes (default: the cores this process may use) on
+    127.0.0.1 with free ports, no dashboard.
+    """
+    from distributed import Client, LocalCluster
+
+    cluster = client = None
+    try:
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            n = workers or _default_workers()
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=None,
+                # no dashboard; the scheduler's small HTTP server on a free loopback port (not 8787)
+                scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+                silence_logs=logging.ERROR,
+                env=WORKER_ENV,
+            )
+            client = Client(cluster)
+        yield client
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def auto_batch(episodes: int, workers: int) -> int:
+    """Episodes per task when the spec says ``auto``: about 50 tasks per worker (load balance and a
+    small loss when a worker dies) but at most 16 episodes per task; 1 for small campaigns."""
+    return max(1, min(16, episodes // (50 * max(1, workers))))
+
+
+def _lost(task: EpisodeTask, exc: BaseException) -> dict[str, Any]:
+    """The record of an episode whose task never returned (worker lost, unpicklable result...)."""
+    rec: dict[str, Any] = {
+        "key": task.key,
+        "sweep": task.sweep,
+        "point": task.point,
+        "point_id": task.point_id,
+        "family": task.family,
+        "params": dict(task.params),
+        "seed": task.seed,
+        "status": "failed",
+        "error": f"{type(exc).__name__}: {exc}",
+        "traceback": None,
+        "wall_s": None,
+    }
+    rec.update(dict.fromkeys(OUTCOME_FIELDS))
+    return rec
+
+
+def _write_spec(spec: CampaignSpec, out: Path) -> None:
+    doc = {
+        "name": spec.name,
+        "source": spec.source,
+        "points": [
+            {"sweep": p.sweep, "point": p.index, "point_id": p.point_id, "family": p.family, "params": dict(p.params)}
+            for p in spec.points()
+        ],
+    }
+    (out / "spec.json").write_text(json.dumps(doc, indent=2, default=str) + "\n")
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out: str | Path,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    retry_failed: bool = False,
+    batch: int | None = None,
+    on_record: Callable[[dict[str, Any]], None] | None = None,
+) -> RunReport:
+    """Run every episode of ``spec`` not yet recorded in ``out/records.jsonl`` (see the module doc).
+
+    ``retry_failed`` runs failed episodes again (their new record replaces the old); ``batch``
+    overrides the spec's episodes per task. Writes ``spec.json`` (the spec and its points) and
+    appends to ``records.jsonl``; the summary is :func:`trustnav.campaigns.summary.write_outputs`.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_spec(spec, out)
+    store = RecordStore(out / "records.jsonl")
+    done = store.latest()
+    tasks = spec.tasks()
+    todo = [t for t in tasks if t.key not in done or (retry_failed and done[t.key].get("status") == "failed")]
+    size = batch or spec.batch
+    n_workers = 0
+    failed = 0
+    t0 = time.perf_counter()
+    if todo:
+        from distributed import as_completed
+        from tqdm import tqdm
+
+        run_id = uuid.uuid4().hex[:8]
+
+        bar = tqdm(
+            total=len(todo),
+            unit="ep",
+            desc=spec.name,
+            file=sys.stderr,
+            disable=None if progress else True,
+            smoothing=0.05,
+        )
+        with dask_client(scheduler, workers) as client, store:
+            n_workers = len(client.scheduler_info().get("workers", {}))
+            size = size or auto_batch(len(todo), n_workers)
+            batches = [todo[i : i + size] for i in range(0, len(todo), size)]
+            futures = client.map(
+                run_batch, batches, pure=False, key=[f"{spec.name}-{run_id}-{i}" for i in range(len(batches))]
+            )
+            of = dict(zip((f.key for f in futures), batches, strict=True))
+            try:
+                for fut in as_completed(futures):
+                    try:
+                        recs = fut.result()
+                    except Exception as exc:  # the task itself was lost: its episodes are failed records
+                        recs = [_lost(t, exc) for t in of[fut.key]]
+                    for rec in recs:
+                        store.append(rec)
+                        failed += rec["status"] == "failed"
+                        if on_record is not None:
+                            on_record(rec)
+                    bar.update(len(recs))
+                    bar.set_postfix(failed=failed, refresh=False)
+                    fut.release()
+            finally:
+                bar.close()
+                client.cancel(futures)
+    return RunReport(
+        episodes=len(tasks),
+        skipped=len(tasks) - len(todo),
+        ran=len(todo),
+        failed=failed,
+        wall_s=time.perf_counter() - t0,
+        workers=n_workers,
+        scheduler=scheduler or "local",
+    )

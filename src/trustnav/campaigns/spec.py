@@ -1,0 +1,509 @@
+"""Campaign specs (YAML or TOML): families, swept parameters, seeds, what to record.
+
+A spec is a mapping::
+
+    name: smoke                 # campaign name (letters, digits, - _ .)
+    seed: 0                     # seeds the draws of random parameters
+    batch: auto                 # episodes per Dask task (auto, or an integer >= 1)
+    record:
+      check_relaxed: false      # independent SLSQP check of every relaxed step (random families)
+      step_times: false         # keep every step's wall time in the records (else a histogram)
+    sweeps:
+      - name: si                # unique per spec
+        family: random_si       # paper | random_si | random_bicycle | drive
+        seeds: 10               # per point: 10 -> 0..9; {start: 100, count: 10}; or a list [1, 5, 9]
+        random_points: 4        # draws of the random parameters (needed when there are any)
+        params:
+          max_pedestrians: 6                 # a plain value (scalar or list) is fixed
+          horizon: {values: [4, 7, 15]}      # explicit list: a grid axis
+          delta: {linspace: [0.04, 0.12, 3]} # evenly spaced grid axis (lo, hi, count)
+          gamma_ini: {uniform: [0.01, 0.05]} # random range (per random point)
+          trust: {choice: [0.2, 0.8]}        # random choice (per random point)
+
+Points of a sweep are the Cartesian product of its grid axes, times ``random_points`` joint
+draws of its random parameters (none: one draw of nothing). Every point runs the same seeds, so
+points are compared on the same worlds wherever the family allows (common random numbers).
+Validation errors name the field (``sweeps[0].params.horizon``) and the expected form.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import re
+import tomllib
+import zlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "FAMILIES",
+    "PARAMS",
+    "CampaignSpec",
+    "EpisodeTask",
+    "RecordOptions",
+    "SpecError",
+    "SweepPoint",
+    "SweepSpec",
+    "load_spec",
+    "spec_from_dict",
+]
+
+FAMILIES = ("paper", "random_si", "random_bicycle", "drive")
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+class SpecError(ValueError):
+    """A campaign spec that does not validate; the message names the field and the expected form."""
+
+
+# ----------------------------------------------------------------------------------------------
+# parameter checkers: value -> normalised value, or raise _Bad(expected form)
+
+
+class _Bad(Exception):
+    """Raised by a checker with the expected form."""
+
+
+def _int_ge(lo: int) -> Callable[[Any], int]:
+    def check(v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v != int(v) or v < lo:
+            raise _Bad(f"an integer >= {lo}")
+        return int(v)
+
+    return check
+
+
+def _num(lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False, what: str = "") -> Callable[[Any], float]:
+    def check(v: Any) -> float:
+        ok = not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
+        ok = ok and (v > lo if lo_open else v >= lo) and v <= hi
+        if not ok:
+            rng = (
+                f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+                if math.isfinite(hi)
+                else f"{'>' if lo_open else '>='} {lo:g}"
+            )
+            raise _Bad(f"a finite number {rng}{what}")
+        return float(v)
+
+    return check
+
+
+def _choice(*options: Any) -> Callable[[Any], Any]:
+    def check(v: Any) -> Any:
+        if v not in options or isinstance(v, bool) != any(isinstance(o, bool) for o in options if o == v):
+            raise _Bad(f"one of {list(options)}")
+        return v
+
+    return check
+
+
+def _scenario(names: tuple[str, ...]) -> Callable[[Any], str]:
+    def check(v: Any) -> str:
+        if not isinstance(v, str) or not (v in names or v.endswith(".toml")):
+            raise _Bad(f"one of {list(names)} or a path to a .toml scenario")
+        return v
+
+    return check
+
+
+def _optional(inner: Callable[[Any], Any], none_means: str) -> Callable[[Any], Any]:
+    def check(v: Any) -> Any:
+        if v is None:
+            return None
+        try:
+            return inner(v)
+        except _Bad as exc:
+            raise _Bad(f"{exc} or null ({none_means})") from None
+
+    return check
+
+
+def _float_list(lo: float, hi: float) -> Callable[[Any], list[float]]:
+    def check(v: Any) -> list[float]:
+        if not isinstance(v, list | tuple) or not v:
+            raise _Bad(f"a non-empty list of numbers in [{lo:g}, {hi:g}]")
+        item = _num(lo, hi)
+        try:
+            return [item(x) for x in v]
+        except _Bad:
+            raise _Bad(f"a non-empty list of numbers in [{lo:g}, {hi:g}]") from None
+
+    return check
+
+
+def _pair_in(lo: float, hi: float) -> Callable[[Any], list[float]]:
+    def check(v: Any) -> list[float]:
+        bad = _Bad(f"a pair [low, high] with {lo:g} <= low <= high <= {hi:g}")
+        if not isinstance(v, list | tuple) or len(v) != 2:
+            raise bad
+        try:
+            a, b = _num(lo, hi)(v[0]), _num(lo, hi)(v[1])
+        except _Bad:
+            raise bad from None
+        if a > b:
+            raise bad
+        return [a, b]
+
+    return check
+
+
+_GAMMA = {
+    "gamma_ini": _num(0.0, 1.0, lo_open=True, what=" (gamma_ini of `weight`)"),
+    "delta": _num(0.0, 1.0, lo_open=True, what=" (delta of `weight`)"),
+    "lam": _num(1.0, what=" (lambda of `weight`)"),
+}
+_TIMING = _choice("paper", "authors_code")
+_DEADLINE = _optional(_num(0.0, 3600.0, lo_open=True, what=" s"), "the controller's default dt/2, wall clock")
+_RANDOM_PARAMS: dict[str, Callable[[Any], Any]] = {
+    # distribution of worlds (RandomWorldSpec): changes which worlds a seed gives
+    "max_pedestrians": _int_ge(1),
+    "close_start_share": _num(0.0, 1.0),
+    "max_steps": _int_ge(1),
+    # applied to the sampled world (same seed, same placements: paired across points)
+    "horizon": _int_ge(1),
+    "v_max": _num(0.0, lo_open=True, what=" m/s"),
+    "trust": _num(0.0, 1.0),
+    "trust_range": _pair_in(0.0, 1.0),
+    "timing": _TIMING,
+    "deadline": _DEADLINE,
+    **_GAMMA,
+}
+
+#: Parameters each family accepts, with their checkers (the expected form is in the error).
+PARAMS: dict[str, dict[str, Callable[[Any], Any]]] = {
+    "paper": {
+        "scenario": _scenario(("paper-1", "paper-2", "paper-3")),
+        "horizon": _int_ge(1),
+        "trust": _num(0.0, 1.0),
+        "trusts": _float_list(0.0, 1.0),
+        "timing": _TIMING,
+        "solver": _choice("sqp", "slsqp"),
+        "reference_v_max": _num(0.0, lo_open=True, what=" m/s"),
+        "reference_gain": _num(0.0, lo_open=True),
+        "position_jitter": _num(0.0, what=" m (sigma of the pedestrians' start positions, from the seed)"),
+        "deadline": _DEADLINE,
+        **_GAMMA,
+    },
+    "random_si": dict(_RANDOM_PARAMS),
+    "random_bicycle": dict(_RANDOM_PARAMS),
+    "drive": {
+        "scenario": _scenario(("case-1", "case-2")),
+        "attentive": _optional(_choice(True, False), "as in the scenario"),
+        "capture_rate": _num(0.0, 1000.0, lo_open=True, what=" frames/s"),
+        "control_rate": _num(0.0, 1000.0, lo_open=True, what=" Hz"),
+        "horizon": _int_ge(1),
+        "safety_radius": _num(0.0, 100.0, lo_open=True, what=" m"),
+        "pixel_noise": _num(0.0, 1.0),
+        "dropout": _num(0.0, 0.99),
+        "miss_rate": _num(0.0, 0.99),
+        "position_noise": _num(0.0, 100.0, what=" m"),
+        "velocity_noise": _num(0.0, 100.0, what=" m/s"),
+        "deadline": _num(0.0, 3600.0, lo_open=True, what=" s"),
+        **_GAMMA,
+    },
+}
+_INT_PARAMS = frozenset({"horizon", "max_pedestrians", "max_steps"})
+_REQUIRED = {"paper": ("scenario",), "drive": ("scenario",)}
+_SWEEP_FORMS = ("values", "linspace", "uniform", "randint", "choice")
+_RANDOM_FORMS = ("uniform", "randint", "choice")
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """What each episode record carries beyond the standard fields."""
+
+    check_relaxed: bool = False  # re-check relaxed steps with the independent SLSQP (random families)
+    step_times: bool = False  # every step's wall time (ms) in the record; else only a histogram
+
+    def __post_init__(self) -> None:
+        for name in ("check_relaxed", "step_times"):
+            if not isinstance(getattr(self, name), bool):
+                raise SpecError(f"record.{name}: expected true or false, got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One parameter setting of a sweep; ``point_id`` hashes (family, params, record options)."""
+
+    sweep: str
+    index: int
+    family: str
+    params: Mapping[str, Any]
+    point_id: str
+
+
+@dataclass(frozen=True)
+class EpisodeTask:
+    """One episode to run: a point and a seed; ``key`` identifies it across runs (resume)."""
+
+    key: str
+    sweep: str
+    point: int
+    point_id: str
+    family: str
+    params: Mapping[str, Any]
+    seed: int
+    record: RecordOptions
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """One family with its fixed, grid and random parameters and its seeds."""
+
+    name: str
+    family: str
+    seeds: tuple[int, ...]
+    fixed: Mapping[str, Any] = field(default_factory=dict)
+    grid: tuple[tuple[str, tuple[Any, ...]], ...] = ()
+    random: tuple[tuple[str, str, tuple[Any, ...]], ...] = ()  # (name, form, args)
+    random_points: int = 0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            raise SpecError(f"sweep name: expected letters, digits, '-', '_' or '.', got {self.name!r}")
+        if self.family not in FAMILIES:
+            raise SpecError(f"sweeps.{self.name}.family: expected one of {list(FAMILIES)}, got {self.family!r}")
+        if not self.seeds:
+            raise SpecError(f"sweeps.{self.name}.seeds: expected at least one seed")
+        if self.random and self.random_points < 1:
+            raise SpecError(
+                f"sweeps.{self.name}.random_points: expected an integer >= 1 when parameters have random "
+                f"forms ({', '.join(n for n, _, _ in self.random)})"
+            )
+
+    def points(self, campaign_seed: int, record: RecordOptions) -> list[SweepPoint]:
+        """Grid product x random draws (seeded by the campaign seed and the sweep name)."""
+        names = [n for n, _ in self.grid]
+        combos = list(itertools.product(*[vals for _, vals in self.grid])) or [()]
+        rng = np.random.default_rng([campaign_seed, zlib.crc32(self.name.encode())])
+        draws: list[dict[str, Any]] = []
+        for _ in range(self.random_points if self.random else 1):
+            d: dict[str, Any] = {}
+            for name, form, args in self.random:
+                if form == "uniform":
+                    d[name] = round(float(rng.uniform(args[0], args[1])), 6)
+                elif form == "randint":
+                    d[name] = int(rng.integers(args[0], args[1] + 1))
+                else:
+                    d[name] = args[int(rng.integers(len(args)))]
+            draws.append(d)
+        out = []
+        for combo in combos:
+            for d in draws:
+                params = {**self.fixed, **dict(zip(names, combo, strict=True)), **d}
+                params = {
+                    k: _check_param(self.family, k, v, f"sweeps.{self.name}.params.{k}") for k, v in params.items()
+                }
+                ident = json.dumps({"family": self.family, "params": params, "record": record.__dict__}, sort_keys=True)
+                pid = hashlib.sha1(ident.encode()).hexdigest()[:10]
+                out.append(SweepPoint(self.name, len(out), self.family, params, pid))
+        return out
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    """A validated campaign: sweeps, the seed of random parameter draws, batch size, record options."""
+
+    name: str
+    sweeps: tuple[SweepSpec, ...]
+    seed: int = 0
+    batch: int | None = None  # episodes per Dask task; None: auto (see runner.auto_batch)
+    record: RecordOptions = field(default_factory=RecordOptions)
+    source: Mapping[str, Any] = field(default_factory=dict, compare=False)  # the spec as loaded
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            raise SpecError(f"name: expected letters, digits, '-', '_' or '.', got {self.name!r}")
+        if not self.sweeps:
+            raise SpecError("sweeps: expected a non-empty list of sweeps")
+        names = [s.name for s in self.sweeps]
+        if len(set(names)) != len(names):
+            raise SpecError(f"sweeps: names must be unique, got {names}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SpecError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        if self.batch is not None and (
+            isinstance(self.batch, bool) or not isinstance(self.batch, int) or self.batch < 1
+        ):
+            raise SpecError(f"batch: expected an integer >= 1 (episodes per Dask task) or auto, got {self.batch!r}")
+
+    def points(self) -> list[SweepPoint]:
+        return [p for s in self.sweeps for p in s.points(self.seed, self.record)]
+
+    def tasks(self) -> list[EpisodeTask]:
+        """Every episode of the campaign, in spec order (sweep, point, seed)."""
+        out = []
+        for s in self.sweeps:
+            for p in s.points(self.seed, self.record):
+                for seed in s.seeds:
+                    key = f"{s.name}:{p.point_id}:{seed}"
+                    out.append(EpisodeTask(key, s.name, p.index, p.point_id, s.family, p.params, seed, self.record))
+        return out
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def _check_param(family: str, name: str, value: Any, where: str) -> Any:
+    checks = PARAMS[family]
+    if name not in checks:
+        raise SpecError(f"{where}: unknown parameter for family {family!r}; expected one of {sorted(checks)}")
+    try:
+        return checks[name](value)
+    except _Bad as exc:
+        raise SpecError(f"{where}: expected {exc}, got {value!r}") from None
+
+
+def _seeds(v: Any, where: str) -> tuple[int, ...]:
+    form = "an integer >= 1 (seeds 0..n-1), {start: s, count: n}, or a non-empty list of integers >= 0"
+    bad = SpecError(f"{where}: expected {form}, got {v!r}")
+    if isinstance(v, bool):
+        raise bad
+    if isinstance(v, int):
+        if v < 1:
+            raise bad
+        return tuple(range(v))
+    if isinstance(v, Mapping):
+        if set(v) != {"start", "count"}:
+            raise bad
+        s, n = v["start"], v["count"]
+        if any(isinstance(x, bool) or not isinstance(x, int) for x in (s, n)) or s < 0 or n < 1:
+            raise bad
+        return tuple(range(s, s + n))
+    if isinstance(v, list) and v and all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in v):
+        if len(set(v)) != len(v):
+            raise SpecError(f"{where}: seeds must be unique, got {v!r}")
+        return tuple(v)
+    raise bad
+
+
+def _sweep_from_dict(d: Any, i: int) -> SweepSpec:
+    where = f"sweeps[{i}]"
+    if not isinstance(d, Mapping):
+        raise SpecError(f"{where}: expected a mapping with name, family, seeds, params, got {d!r}")
+    unknown = set(d) - {"name", "family", "seeds", "params", "random_points"}
+    if unknown:
+        raise SpecError(f"{where}: unknown keys {sorted(unknown)}; expected name, family, seeds, params, random_points")
+    for key in ("name", "family", "seeds"):
+        if key not in d:
+            raise SpecError(f"{where}.{key}: missing (required)")
+    name, family = d["name"], d["family"]
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise SpecError(f"{where}.name: expected letters, digits, '-', '_' or '.', got {name!r}")
+    where = f"sweeps.{name}"
+    if family not in FAMILIES:
+        raise SpecError(f"{where}.family: expected one of {list(FAMILIES)}, got {family!r}")
+    seeds = _seeds(d["seeds"], f"{where}.seeds")
+    params = d.get("params") or {}
+    if not isinstance(params, Mapping):
+        raise SpecError(f"{where}.params: expected a mapping of parameter names to values or sweep forms")
+    rp = d.get("random_points", 0)
+    if isinstance(rp, bool) or not isinstance(rp, int) or rp < 0:
+        raise SpecError(f"{where}.random_points: expected an integer >= 0, got {rp!r}")
+    fixed: dict[str, Any] = {}
+    grid: list[tuple[str, tuple[Any, ...]]] = []
+    random: list[tuple[str, str, tuple[Any, ...]]] = []
+    for pname, v in params.items():
+        pw = f"{where}.params.{pname}"
+        if not isinstance(v, Mapping):
+            fixed[pname] = _check_param(family, pname, v, pw)
+            continue
+        if len(v) != 1 or next(iter(v)) not in _SWEEP_FORMS:
+            raise SpecError(
+                f"{pw}: expected a value or one sweep form {{values: [..]}}, {{linspace: [lo, hi, n]}}, "
+                f"{{uniform: [lo, hi]}}, {{randint: [lo, hi]}} or {{choice: [..]}}, got {dict(v)!r}"
+            )
+        form, args = next(iter(v.items()))
+        if form == "values" or form == "choice":
+            if not isinstance(args, list) or not args:
+                raise SpecError(f"{pw}.{form}: expected a non-empty list of values, got {args!r}")
+            vals = tuple(_check_param(family, pname, x, f"{pw}.{form}") for x in args)
+            if form == "values":
+                grid.append((pname, vals))
+            else:
+                random.append((pname, form, vals))
+            continue
+        if form == "linspace":
+            ok = isinstance(args, list) and len(args) == 3 and isinstance(args[2], int) and args[2] >= 1
+            ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) for x in args[:2])
+            if not ok:
+                raise SpecError(f"{pw}.linspace: expected [low, high, count] with count an integer >= 1, got {args!r}")
+            vals = tuple(round(float(x), 9) for x in np.linspace(args[0], args[1], args[2]))
+            if pname in _INT_PARAMS:
+                vals = tuple(round(x) for x in vals)
+            grid.append((pname, tuple(_check_param(family, pname, x, f"{pw}.linspace") for x in vals)))
+            continue
+        ok = isinstance(args, list) and len(args) == 2
+        ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) for x in args) and args[0] <= args[1]
+        if form == "randint":
+            ok = ok and all(isinstance(x, int) for x in args)
+        if not ok:
+            kind = "integers" if form == "randint" else "numbers"
+            raise SpecError(f"{pw}.{form}: expected [low, high] {kind} with low <= high, got {args!r}")
+        for x in args:
+            _check_param(family, pname, x, f"{pw}.{form}")
+        random.append((pname, form, tuple(args)))
+    have = set(params)
+    for req in _REQUIRED.get(family, ()):
+        if req not in have:
+            raise SpecError(f"{where}.params.{req}: missing (required for family {family!r})")
+    return SweepSpec(name, family, seeds, fixed, tuple(grid), tuple(random), rp)
+
+
+def spec_from_dict(d: Any) -> CampaignSpec:
+    """Validate a loaded spec document (see the module docstring for the form)."""
+    if not isinstance(d, Mapping):
+        raise SpecError(f"spec: expected a mapping at the top level, got {type(d).__name__}")
+    unknown = set(d) - {"name", "seed", "batch", "record", "sweeps", "description"}
+    if unknown:
+        raise SpecError(
+            f"spec: unknown keys {sorted(unknown)}; expected name, description, seed, batch, record, sweeps"
+        )
+    if "name" not in d:
+        raise SpecError("name: missing (required)")
+    rec = d.get("record") or {}
+    if not isinstance(rec, Mapping) or set(rec) - {"check_relaxed", "step_times"}:
+        raise SpecError(f"record: expected a mapping with check_relaxed and/or step_times (true/false), got {rec!r}")
+    sweeps = d.get("sweeps")
+    if not isinstance(sweeps, list) or not sweeps:
+        raise SpecError("sweeps: expected a non-empty list of sweeps (name, family, seeds, params)")
+    return CampaignSpec(
+        name=d["name"],
+        sweeps=tuple(_sweep_from_dict(s, i) for i, s in enumerate(sweeps)),
+        seed=d.get("seed", 0),
+        batch=None if d.get("batch", "auto") == "auto" else d["batch"],
+        record=RecordOptions(**rec),
+        source=dict(d),
+    )
+
+
+def load_spec(path: str | Path) -> CampaignSpec:
+    """Load and validate a ``.yaml``/``.yml`` or ``.toml`` campaign spec."""
+    p = Path(path)
+    if not p.is_file():
+        raise SpecError(f"spec {p}: no such file")
+    text = p.read_text()
+    try:
+        if p.suffix in (".yaml", ".yml"):
+            import yaml
+
+            doc = yaml.safe_load(text)
+        elif p.suffix == ".toml":
+            doc = tomllib.loads(text)
+        else:
+            raise SpecError(f"spec {p}: expected a .yaml, .yml or .toml file")
+    except SpecError:
+        raise
+    except Exception as exc:  # parse errors of either format
+        raise SpecError(f"spec {p}: cannot parse: {exc}") from None
+    return spec_from_dict(doc)
