@@ -266,9 +266,9 @@ def _clean(v: Any) -> Any:
     return v
 
 
-def run_episode_task(task: EpisodeTask) -> dict[str, Any]:
-    """Run one episode; never raises: an error becomes a record with ``status: failed``."""
-    head = {
+def record_head(task: EpisodeTask) -> dict[str, Any]:
+    """The fields every record of ``task`` starts with (what identifies the episode)."""
+    return {
         "key": task.key,
         "sweep": task.sweep,
         "point": task.point,
@@ -277,6 +277,11 @@ def run_episode_task(task: EpisodeTask) -> dict[str, Any]:
         "params": dict(task.params),
         "seed": task.seed,
     }
+
+
+def run_episode_task(task: EpisodeTask) -> dict[str, Any]:
+    """Run one episode; never raises: an error becomes a record with ``status: failed``."""
+    head = record_head(task)
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         body = _RUNNERS[task.family](task)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from trustnav.campaigns.episodes import OUTCOME_FIELDS, run_batch
+from trustnav.campaigns.episodes import OUTCOME_FIELDS, record_head, run_batch
 from trustnav.campaigns.records import RecordStore
 from trustnav.campaigns.spec import CampaignSpec, EpisodeTask
 
@@ -105,13 +105,7 @@ def auto_batch(episodes: int, workers: int) -> int:
 def _lost(task: EpisodeTask, exc: BaseException) -> dict[str, Any]:
     """The record of an episode whose task never returned (worker lost, unpicklable result...)."""
     rec: dict[str, Any] = {
-        "key": task.key,
-        "sweep": task.sweep,
-        "point": task.point,
-        "point_id": task.point_id,
-        "family": task.family,
-        "params": dict(task.params),
-        "seed": task.seed,
+        **record_head(task),
         "status": "failed",
         "error": f"{type(exc).__name__}: {exc}",
         "traceback": None,

@@ -146,6 +146,11 @@ def plot_trust(result: DriveResult, path: str | Path) -> Path:
     ax.set_ylabel("aggregated trust")
     ax.set_title(f"{result.scenario.name}: trust from the camera ({result.sensing}, {result.capture_rate:g} frame/s)",
                  fontsize=10)  # fmt: skip
+    return _finish(plt, fig, ax, path)
+
+
+def _finish(plt, fig, ax, path: str | Path) -> Path:
+    """Legend, grid and layout of a time plot; saved to ``path`` and closed."""
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -176,13 +181,7 @@ def plot_distance(results: DriveResult | Sequence[DriveResult], path: str | Path
     ax.set_xlabel("time (s)")
     ax.set_ylabel("distance to pedestrian (m)")
     ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians", fontsize=10)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=130)
-    plt.close(fig)
-    return out
+    return _finish(plt, fig, ax, path)
 
 
 # ------------------------------------------------------------------ camera frames and animation
