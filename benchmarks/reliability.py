@@ -41,6 +41,8 @@ KEYS = (
     "violations",
     "breach_episodes_with_safe_plan_at_every_step",
     "min_distance_min",
+    "breach_continuous_episodes",
+    "min_distance_continuous_min",
     "fallback_steps",
     "recovered_steps",
     "deadline_steps",

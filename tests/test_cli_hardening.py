@@ -448,8 +448,8 @@ def test_authors_style_baseline_is_one_closure_per_row_with_scipy_defaults(monke
     assert isinstance(slv.make_solver("slsqp-authors"), slv.AuthorsSlsqpSolver)
     assert isinstance(slv.make_solver("slsqp"), slv.SlsqpSolver)
     cfg = MpcConfig(horizon=4, dt=0.1, safety_radius=2.5)
-    ctl = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg,
-                        slv.AuthorsSlsqpSolver())  # fmt: skip
+    model = KinematicBicycle(integration_step=None)  # one Euler step per dt: k = 0 rows decided
+    ctl = MpcController(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg, slv.AuthorsSlsqpSolver())
     x = np.array([0.0, 0.0, 0.0, 8.0])
     peds = np.array([[12.0, 3.0], [20.0, -3.5], [30.0, 4.0]])
     for _ in range(2):

@@ -33,10 +33,11 @@ def _si_problem(timing="paper", n_h=7, n_p=3, seed=0):
     return prob, rng
 
 
-def _bike_problem(timing="paper", n_h=7, n_p=3, seed=0):
+def _bike_problem(timing="paper", n_h=7, n_p=3, seed=0, integration_step=0.01):
     rng = np.random.default_rng(seed)
     cfg = MpcConfig(horizon=n_h, dt=0.1, safety_radius=2.5, timing=timing)
-    prob = BicycleProblem(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
+    model = KinematicBicycle(integration_step=integration_step)
+    prob = BicycleProblem(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
     peds = rng.uniform([10, -8], [40, 8], size=(n_p, 2))
     prob.set_stage([5.0, 0.5, 0.1, 6.0], peds, rng.normal(0, 1, (n_p, 2)), rng.uniform(0, 1, n_p), [0.01, 0.2])
     return prob, rng
@@ -53,7 +54,11 @@ def test_barrier_and_cbf_rows_follow_h_quad_and_cbf_imp():
     assert cbf_rows(ego, ped, vel, omg, 1.0, dt, "authors_code")[0, 0] == pytest.approx((16 - 1) - 0.9 * (25 - 1))
 
 
-@pytest.mark.parametrize("maker", [_si_problem, _bike_problem])
+def _bike_euler_problem(timing="paper", n_h=7, n_p=3, seed=0):
+    return _bike_problem(timing, n_h, n_p, seed, integration_step=None)
+
+
+@pytest.mark.parametrize("maker", [_si_problem, _bike_problem, _bike_euler_problem])
 @pytest.mark.parametrize("timing", ["paper", "authors_code"])
 def test_compiled_qp_matches_numpy_problem_and_finite_differences(maker, timing):
     prob, rng = maker(timing)
@@ -77,10 +82,36 @@ def test_compiled_qp_matches_numpy_problem_and_finite_differences(maker, timing)
     np.testing.assert_allclose(prob.f, grad_fd, rtol=1e-5, atol=1e-5)
 
 
-def test_bicycle_first_cbf_row_does_not_depend_on_inputs():
-    prob, _ = _bike_problem()
-    prob.build(prob.initial_guess())
-    np.testing.assert_array_equal(prob.A[: prob.n_p], 0.0)
+def test_bicycle_first_cbf_row_depends_on_the_first_input_only_with_substeps():
+    euler, _ = _bike_euler_problem()
+    euler.build(euler.initial_guess())
+    np.testing.assert_array_equal(euler.A[: euler.n_p], 0.0)  # one Euler step: decided by the state
+    assert euler.n_decided == euler.n_p
+    fine, _ = _bike_problem()
+    fine.build(fine.initial_guess())
+    assert fine.n_decided == 0
+    assert np.abs(fine.A[: fine.n_p, :2]).max() > 1e-3  # u_0 moves x(1) within the step
+    np.testing.assert_array_equal(fine.A[: fine.n_p, 2:], 0.0)  # later inputs do not
+
+
+def test_bicycle_step_follows_the_continuous_car_on_a_curve():
+    """`f_e` with 10 ms sub-steps stays within a centimetre of the continuous bicycle (integrated
+    at 0.01 ms) over one 0.1 s step at 8 m/s, full lock and full throttle; one Euler step is
+    8 cm off, which is how a car breaches R while every predicted CBF row holds."""
+    x0, u = np.array([0.0, 0.0, 0.3, 8.0]), np.array([np.radians(35.0), 3.0])
+    truth = KinematicBicycle(integration_step=1e-5).step(x0, u, 0.1)
+    fine = KinematicBicycle().step(x0, u, 0.1)
+    euler = KinematicBicycle(integration_step=None).step(x0, u, 0.1)
+    assert np.linalg.norm(fine[:2] - truth[:2]) < 0.01
+    assert np.linalg.norm(euler[:2] - truth[:2]) > 0.07
+    # the error is first order in the sub-step: the 1 ms plant of the reliability study is 10 x closer
+    plant = KinematicBicycle(integration_step=1e-3).step(x0, u, 0.1)
+    assert np.linalg.norm(plant[:2] - truth[:2]) < 0.15 * np.linalg.norm(fine[:2] - truth[:2])
+    # a plant in 10 ms steps is the controller's model exactly
+    plant = x0
+    for _ in range(10):
+        plant = KinematicBicycle().step(plant, u, 0.01)
+    np.testing.assert_allclose(plant, fine, atol=1e-12)
 
 
 @pytest.mark.parametrize("maker", [_si_problem, _bike_problem])
@@ -108,11 +139,18 @@ def test_controller_accepts_changing_pedestrian_counts():
 
 
 def test_pedestrian_inside_margin_is_reported_and_not_silent():
-    """A pedestrian appearing inside R in front of a fast bicycle: the first CBF row is fixed by the
-    current state (no input changes the next position), so it is reported as decided, not hidden;
-    the plan brakes and steers."""
+    """A pedestrian appearing inside R in front of a fast bicycle: with one Euler step per dt the
+    first CBF row is fixed by the current state (no input changes the next position), so it is
+    reported as decided, not hidden; with sub-steps it is relaxed and says so. Either way the plan
+    brakes."""
     cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, deadline=10.0)
-    ctl = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
+    fine = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
+    sol = fine.step([10.0, 0.0, 0.0, 10.0], [[11.5, 0.5]], [[0.0, 0.0]], [0.0])
+    assert sol.status is SolveStatus.RELAXED and sol.slack_used and sol.first_row_violation > 1.0
+    assert "relaxed" in sol.message
+    assert sol.control[1] == pytest.approx(KinematicBicycle().accel_min)
+    model = KinematicBicycle(integration_step=None)
+    ctl = MpcController(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
     sol = ctl.step([10.0, 0.0, 0.0, 10.0], [[11.5, 0.5]], [[0.0, 0.0]], [0.0])
     # row k = 0: ||(11, 0) - (11.5, 0.5)||^2 - R^2 - (1 - gamma)(||(10, 0) - ped||^2 - R^2), gamma = 0.03
     expected = (0.5 - 6.25) - 0.97 * (2.5 - 6.25)

@@ -85,7 +85,10 @@ def test_pedestrian_appearing_inside_margin_relaxes_brakes_and_episode_continues
     assert not hit.fallback
     assert hit.control[1] < 0  # braking
     assert xs[21, 3] < xs[20, 3]  # the braking is applied
-    assert all(s.status in (SolveStatus.OPTIMAL, SolveStatus.RELAXED) for s in sols)
+    # never a failed step; a checked fallback (a better plan than the solver's) only once the
+    # pedestrian is there
+    assert all(s.status is not SolveStatus.FAILED for s in sols)
+    assert not any(s.fallback for s in sols[:20])
     # slack only while the hard problem is infeasible: the pedestrian inside (or entering) the margin
     d = np.hypot(xs[:-1, 0] - 17.8, xs[:-1, 1] - 0.2)
     used = np.flatnonzero([s.slack_used for s in sols])

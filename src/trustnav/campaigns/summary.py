@@ -133,6 +133,11 @@ def summarise_records(recs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "relaxed_steps_independently_feasible": feasible,
         "breach_episodes_with_safe_plan_at_every_step": sum(bool(r["breach"]) for r in safe_everywhere),
         "breach_episodes_unchecked": sum(bool(r["breach"]) for r in unchecked),  # relaxed steps not checked
+        # random families: the plant's path between control steps (record.min_distance_continuous)
+        "breach_continuous_episodes": sum(bool(r.get("breach_continuous")) for r in ok),
+        "min_distance_continuous_min": min(mc)
+        if (mc := [r["min_distance_continuous"] for r in ok if r.get("min_distance_continuous") is not None])
+        else None,
         "step_ms": _tail(hist, max(maxes) if maxes else None),
         "errors": dict(sorted(errors.items(), key=lambda kv: -kv[1])[:5]),
     }

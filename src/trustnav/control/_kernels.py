@@ -103,6 +103,7 @@ def bicycle_qp(
     omg,
     r2,
     dt,
+    n_sub,
     timing,
     ulo,
     uhi,
@@ -113,7 +114,8 @@ def bicycle_qp(
     bu,
     g,
 ):
-    """Kinematic bicycle (x, y, yaw, v; steer, accel) with the Section IV tracking cost.
+    """Kinematic bicycle (x, y, yaw, v; steer, accel) with the Section IV tracking cost; one
+    step of dt is ``n_sub`` Euler sub-steps (as :meth:`KinematicBicycle.step`).
 
     Residuals (weights w = [cte, heading, speed, steer, accel, steer rate, accel rate]):
     cross-track and heading error to the reference waypoints and speed error for k = 1..N,
@@ -128,25 +130,32 @@ def bicycle_qp(
     sens = np.zeros((n_h + 1, 4, n))
     for d in range(4):
         xs[0, d] = x0[d]
+    h = dt / n_sub
     for k in range(n_h):
         px, py, yaw, v = xs[k, 0], xs[k, 1], xs[k, 2], xs[k, 3]
         st, ac = u[k, 0], u[k, 1]
-        c = math.cos(yaw)
-        s = math.sin(yaw)
-        t = math.tan(st)
-        xs[k + 1, 0] = px + v * c * dt
-        xs[k + 1, 1] = py + v * s * dt
-        xs[k + 1, 2] = yaw + v * t / wheelbase * dt
-        xs[k + 1, 3] = v + ac * dt
-        for i in range(n):
-            s0, s1, s2, s3 = sens[k, 0, i], sens[k, 1, i], sens[k, 2, i], sens[k, 3, i]
-            sens[k + 1, 0, i] = s0 - v * s * dt * s2 + c * dt * s3
-            sens[k + 1, 1, i] = s1 + v * c * dt * s2 + s * dt * s3
-            sens[k + 1, 2, i] = s2 + t / wheelbase * dt * s3
-            sens[k + 1, 3, i] = s3
+        turn = math.tan(st) / wheelbase
         cs = math.cos(st)
-        sens[k + 1, 2, 2 * k] += v * dt / (wheelbase * cs * cs)
-        sens[k + 1, 3, 2 * k + 1] += dt
+        dturn = h / (wheelbase * cs * cs)
+        ncol = 2 * k + 2  # inputs after u_k do not move x(k+1)
+        for i in range(ncol):
+            for d in range(4):
+                sens[k + 1, d, i] = sens[k, d, i]
+        for _ in range(n_sub):  # Euler sub-steps of h with u_k held, and their sensitivities
+            c = math.cos(yaw)
+            s = math.sin(yaw)
+            for i in range(ncol):
+                s2, s3 = sens[k + 1, 2, i], sens[k + 1, 3, i]
+                sens[k + 1, 0, i] += -v * s * h * s2 + c * h * s3
+                sens[k + 1, 1, i] += v * c * h * s2 + s * h * s3
+                sens[k + 1, 2, i] += turn * h * s3
+            sens[k + 1, 2, 2 * k] += v * dturn
+            sens[k + 1, 3, 2 * k + 1] += h
+            px, py, yaw, v = px + v * c * h, py + v * s * h, yaw + v * turn * h, v + ac * h
+        xs[k + 1, 0] = px
+        xs[k + 1, 1] = py
+        xs[k + 1, 2] = yaw
+        xs[k + 1, 3] = v
     # residuals r and Jacobian jr (7 N x n)
     nr = 7 * n_h
     r = np.zeros(nr)

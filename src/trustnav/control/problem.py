@@ -208,8 +208,9 @@ class MpcProblem:
         self.origin = np.zeros(2)
         self._resize(0)
 
-    #: leading horizon steps whose CBF rows no input can change (the bicycle's position at k = 1
-    #: depends on the state only): they are reported, but left out of the QP and of feasibility
+    #: leading horizon steps whose CBF rows no input can change (a bicycle integrated with one
+    #: Euler step per dt: its position at k = 1 depends on the state only): they are reported,
+    #: but left out of the QP and of feasibility
     decided_steps: int = 0
 
     def _resize(self, n_p: int) -> None:
@@ -385,12 +386,15 @@ class BicycleProblem(MpcProblem):
     """`proposed` with the kinematic bicycle and the Section IV lane-tracking cost."""
 
     nonlinear = True
-    decided_steps = 1
 
     def __init__(self, model: KinematicBicycle, cost: LaneTrackingCost, config: MpcConfig) -> None:
         self.cost = cost
         self.weights = cost.weights.as_array()
         self.n_extra_rows = config.horizon  # speed bounds on v(k+1)
+        self.n_sub = model.substeps(config.dt)
+        # with one Euler step per dt the position at k = 1 depends on the state only; with
+        # sub-steps u_0 moves it (a little), so those rows stay in the QP
+        self.decided_steps = 1 if self.n_sub == 1 else 0
         super().__init__(model, config)
 
     def _set_reference(self) -> None:
@@ -405,7 +409,7 @@ class BicycleProblem(MpcProblem):
         cost = kern.bicycle_qp(
             self.x0, u, self.u_prev, self.ref_pts, self.ref_yaw, self.ref_v, self.weights, m.wheelbase,
             m.speed_min, m.speed_max, self.peds, self.vels, self.one_minus_gamma, c.safety_radius**2, c.dt,
-            self.timing_code, self.ulo, self.uhi, self.H, self.f, self.A, self.bl, self.bu, self.g,
+            self.n_sub, self.timing_code, self.ulo, self.uhi, self.H, self.f, self.A, self.bl, self.bu, self.g,
         )  # fmt: skip
         self.bl[self.n : self.n + self.n_decided] = -kern.INF  # decided rows: nothing to choose
         return cost
@@ -417,12 +421,14 @@ class BicycleProblem(MpcProblem):
         """:meth:`KinematicBicycle.step` along the horizon, in plain floats (the reference path's
         hot loop)."""
         u = np.asarray(u_flat, dtype=float).reshape(self.n_h, 2).tolist()
-        dt, wb = self.config.dt, self.model.wheelbase
+        h, wb = self.config.dt / self.n_sub, self.model.wheelbase
         px, py, yaw, v = (float(c) for c in self.x0)
         out = [[px, py, yaw, v]]
         for steer, acc in u:
-            px, py, yaw, v = (px + v * math.cos(yaw) * dt, py + v * math.sin(yaw) * dt,
-                              yaw + v * math.tan(steer) / wb * dt, v + acc * dt)  # fmt: skip
+            turn = math.tan(steer) / wb
+            for _ in range(self.n_sub):
+                px, py, yaw, v = (px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h,
+                                  yaw + v * turn * h, v + acc * h)  # fmt: skip
             out.append([px, py, yaw, v])
         return np.array(out)
 

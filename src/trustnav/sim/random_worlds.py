@@ -17,6 +17,7 @@ record; :func:`hard_feasible_exists` is the independent check used for relaxed s
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -209,17 +210,50 @@ def hard_feasible_exists(problem: MpcProblem, plans: list[NDArray[np.float64]], 
     return False
 
 
+#: Plant integration step of the bicycle (s): 10 x finer than the controller's sub-steps, so the
+#: plant is the continuous car to within a millimetre per control period, not the controller's model.
+PLANT_STEP = 0.001
+
+
 def _plant(
     model: Any, x: NDArray[np.float64], applied: NDArray[np.float64], new: NDArray[np.float64], cfg: MpcConfig
-) -> NDArray[np.float64]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """One control period of the plant: the input being executed for the first ``latency``
-    seconds (actuation delay, at most one period), then the new one; integrated in 10 ms steps."""
+    seconds (actuation delay, at most one period), then the new one. The single integrator is
+    exact in one step per input; the bicycle is integrated in :data:`PLANT_STEP` steps. Returns
+    the state at the end of the period and the ego positions along it (times ``path_times``)."""
     lat = min(cfg.latency, cfg.dt)
-    n = max(1, round(cfg.dt / 0.01))
+    if isinstance(model, SingleIntegrator):
+        times = [0.0, lat, cfg.dt] if 0 < lat < cfg.dt else [0.0, cfg.dt]
+        pts = [x[:2].copy()]
+        for t_a, t_b in itertools.pairwise(times):
+            x = model.step(x, applied if t_a < lat - 1e-12 else new, t_b - t_a)
+            pts.append(x[:2].copy())
+        return x, np.array(pts), np.array(times)
+    n = max(1, round(cfg.dt / PLANT_STEP))
     h = cfg.dt / n
+    pts = np.empty((n + 1, 2))
+    pts[0] = x[:2]
     for i in range(n):
         x = model.step(x, applied if i * h < lat - 1e-12 else new, h)
-    return x
+        pts[i + 1] = x[:2]
+    return x, pts, np.linspace(0.0, cfg.dt, n + 1)
+
+
+def _path_min_distance(
+    path: NDArray[np.float64], times: NDArray[np.float64], peds: NDArray[np.float64], vels: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Closest approach of the ego path (piecewise linear through ``path`` at ``times``) to each
+    constant-velocity pedestrian starting at ``peds``: the distance between samples, exact for the
+    single integrator and to within the plant step for the bicycle."""
+    q = peds[None, :, :] + times[:, None, None] * vels[None, :, :]  # (T, N, 2)
+    d = path[:, None, :] - q  # relative position at each time
+    a, b = d[:-1], d[1:]
+    e = b - a
+    den = np.sum(e * e, axis=2)
+    s = np.clip(-np.sum(a * e, axis=2) / np.where(den > 0, den, 1.0), 0.0, 1.0)
+    closest = np.linalg.norm(a + s[:, :, None] * e, axis=2)
+    return closest.min(axis=0)
 
 
 def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: bool = False) -> dict[str, Any]:
@@ -230,13 +264,16 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
     With ``check_relaxed`` every step whose plan violates a CBF row is re-checked with
     :func:`hard_feasible_exists` on the same stage. ``ped_min_distance`` / ``ped_trust``: each
     pedestrian's closest approach (None if never known to the controller) and trust.
+    ``min_distance`` / ``breach`` are taken at the control steps, where the discrete-time CBF
+    (`cbf_discrete`) guarantees h >= 0; ``min_distance_continuous`` / ``breach_continuous`` along
+    the plant's path between them.
     """
     ctl, model = _controller(world)
     cfg = world.config
     x = world.start.astype(float).copy()
     peds = world.pedestrians.copy()
     r = cfg.safety_radius
-    min_dist = math.inf
+    min_dist = min_cont = math.inf
     ped_min = np.full(len(peds), math.inf)  # per pedestrian, over the steps it is known
     times, cpu, statuses = [], [], {}
     relaxed = fallback = recovered = deadline = 0
@@ -261,8 +298,12 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
         if check_relaxed and sol.slack_used:
             relaxed_checked += 1
             relaxed_feasible += hard_feasible_exists(ctl.problem, [sol.inputs], seed=world.seed * 1000 + t)
-        x = _plant(model, x, applied, sol.control, cfg)
+        x, path, path_t = _plant(model, x, applied, sol.control, cfg)
         applied = sol.control
+        if known.any():
+            min_cont = min(
+                min_cont, float(_path_min_distance(path, path_t, peds[known], world.velocities[known]).min())
+            )
         peds = peds + world.velocities * cfg.dt
         steps = t + 1
         if known.any():
@@ -285,6 +326,8 @@ def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: 
         "reached_goal": reached,
         "min_distance": min_dist,
         "breach": bool(min_dist < r - 1e-6),
+        "min_distance_continuous": min_cont,
+        "breach_continuous": bool(min_cont < r - 1e-6),
         "relaxed_steps": int(relaxed),
         "relaxed_checked": int(relaxed_checked),
         "relaxed_but_feasible": int(relaxed_feasible),
