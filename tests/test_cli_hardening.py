@@ -232,6 +232,25 @@ def test_truncated_jpeg_is_skipped_and_counted_not_annotated_grey(tmp_path, scri
     assert sorted(p.name for p in (out / "frames").iterdir()) == ["f1.png", "f3.png"]
 
 
+def test_video_cut_off_in_the_middle_is_reported_as_damaged(tmp_path, scripted, capfd):
+    import cv2
+
+    whole = tmp_path / "whole.avi"
+    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        writer.write(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8))
+    writer.release()
+    data = whole.read_bytes()
+    (tmp_path / "cut.avi").write_bytes(data[: int(0.6 * len(data))])  # as a copy that stopped part-way
+    out = tmp_path / "out"
+    assert main(["estimate", str(tmp_path / "cut.avi"), "--out", str(out)]) == 0  # the frames it has still count
+    captured = capfd.readouterr()
+    assert "skipped frame cut.avi#" in captured.err and "of the 30 frames its header announces" in captured.err
+    assert "truncated or damaged" in captured.err and "1 frames skipped" in captured.out
+    assert 10 < scripted.calls < 30
+
+
 # -- 4. non-zero exit when nothing could be read ---------------------------------------------------
 
 

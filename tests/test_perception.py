@@ -487,3 +487,11 @@ def test_openpifpaf_backend_finds_the_crossing_pedestrians():
     people = make_backend("openpifpaf")(_rgb(STREET / "crossing.jpg"))
     found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
     assert found >= 0.8 * len(CLEAR["crossing.jpg"])
+
+
+@pytest.mark.parametrize("fps", ["x", None, 0, -1.0, float("nan"), float("inf"), True])
+def test_tracker_refuses_a_bad_frame_rate_with_a_clear_error(fps):
+    from trustnav.perception.tracking import PersonTracker
+
+    with pytest.raises(ValueError, match="fps must be a positive finite number"):
+        PersonTracker(fps=fps)

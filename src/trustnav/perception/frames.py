@@ -232,6 +232,7 @@ def _video_frames(f: Path, index: int) -> Iterator[FrameItem]:
         cap.release()
         yield FrameItem(f.name, index, None, f"cannot open video {f} (not a video, or a codec OpenCV lacks)")
         return
+    declared = cap.get(cv2.CAP_PROP_FRAME_COUNT)  # from the container's header (<= 0: unknown)
     k = 0
     try:
         while True:
@@ -245,6 +246,12 @@ def _video_frames(f: Path, index: int) -> Iterator[FrameItem]:
         cap.release()
     if k == 0:
         yield FrameItem(f.name, index, None, f"video {f} holds no frame that can be decoded")
+    elif declared > 0 and k < declared - max(2.0, 0.01 * declared):
+        # decoding stopped well before the end the header announces: a cut-off or damaged file
+        yield FrameItem(
+            f"{f.name}#{k}", index + k, None,
+            f"video {f} ended after {k} of the {int(declared)} frames its header announces: truncated or damaged",
+        )  # fmt: skip
 
 
 def iter_sequence(files: tuple[Path, ...] | list[Path]) -> Iterator[FrameItem]:

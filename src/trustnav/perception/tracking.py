@@ -10,6 +10,7 @@ list, hence the exact pin.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,8 +49,8 @@ class PersonTracker:
     """Assigns a track ID to every person of each frame (call :meth:`update` once per frame, in order)."""
 
     def __init__(self, config: TrackerConfig | None = None, fps: float = 10.0) -> None:
-        if not fps > 0:
-            raise ValueError(f"fps must be positive, got {fps!r}")
+        if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) or not 0 < fps < math.inf:
+            raise ValueError(f"fps must be a positive finite number of frames per second, got {fps!r}")
         self.config = config or TrackerConfig()
         self.fps = fps
         try:
