@@ -49,7 +49,8 @@ class PersonTracker:
     """Assigns a track ID to every person of each frame (call :meth:`update` once per frame, in order)."""
 
     def __init__(self, config: TrackerConfig | None = None, fps: float = 10.0) -> None:
-        if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) or not 0 < fps < math.inf:
+        numeric = isinstance(fps, (int, float, np.integer, np.floating)) and not isinstance(fps, bool)
+        if not numeric or not 0 < fps < math.inf:
             raise ValueError(f"fps must be a positive finite number of frames per second, got {fps!r}")
         self.config = config or TrackerConfig()
         self.fps = fps
