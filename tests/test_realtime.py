@@ -112,3 +112,39 @@ def test_latency_compensation_plans_from_the_predicted_state():
     # without latency the plan starts at the measured state
     ctl0 = MpcController(KinematicBicycle(), ROAD, CARLA)
     np.testing.assert_allclose(ctl0.step(x0, [[40.0, 4.0]], [[0.0, -1.0]], [0.5]).predicted_states[0], x0)
+
+
+def test_latency_compensation_with_several_commands_in_flight():
+    """Control at 20 Hz with 100 ms actuation latency: two commands are in flight at every step.
+    The compensated state is where the car (each command acting from its send time + latency)
+    will be when the new command acts, and no step relaxes on a plain road."""
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, gamma=PAPER_GAMMA_CARLA, latency=0.1, deadline=10.0)
+    model = KinematicBicycle()
+    ctl = MpcController(model, ROAD, cfg)
+    x = np.array([0.0, 0.0, 0.0, 6.0])
+    sent = []  # (time acting from, command)
+    applied = np.zeros(2)
+    period, fine = 0.05, 0.001
+    peds = [[30.0, 1.8]]
+    for i in range(60):
+        t = i * period
+        predicted, _ = ctl.compensate_latency(x, peds, None, time=t)
+        # the truth: integrate a copy of the plant over the latency with the commands in flight
+        y, act, queue = x.copy(), applied, list(sent)
+        for j in range(round(cfg.latency / fine)):
+            while queue and queue[0][0] <= t + j * fine + 1e-9:
+                act = queue.pop(0)[1]
+            y = model.step(y, act, fine)
+        assert np.linalg.norm(predicted[:2] - y[:2]) < 0.01, i
+        sol = ctl.step(x, peds, None, [0.3], time=t)
+        assert not sol.slack_used, (i, sol.message)
+        sent.append((t + cfg.latency, sol.control))
+        for j in range(round(period / fine)):
+            while sent and sent[0][0] <= t + j * fine + 1e-9:
+                applied = sent.pop(0)[1]
+            x = model.step(x, applied, fine)
+    assert x[0] > 15.0
+    with pytest.raises(ValueError, match="time must not go back"):
+        ctl.step(x, peds, None, [0.3], time=1.0)
+    with pytest.raises(ValueError, match="time must be a finite number"):
+        ctl.step(x, peds, None, [0.3], time="soon")

@@ -7,7 +7,9 @@ perception and trust estimation.
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +29,8 @@ from trustnav.control.solvers import (
 
 __all__ = ["MpcController", "MpcSolution"]
 
+_wall = time.perf_counter  # (``time`` is also an argument name of MpcController.step)
+
 
 @dataclass
 class MpcSolution:
@@ -43,8 +47,8 @@ class MpcSolution:
     solve_time: float  # seconds, the whole step
     message: str = ""
     source: str = "solver"  # "solver", "previous_plan" or "braking"
-    first_row_violation: float = 0.0  # worst violation of the first rows an input can change (k = 0; bicycle k = 1)
-    decided_violation: float = 0.0  # worst violation of rows fixed by the current state (bicycle k = 0)
+    first_row_violation: float = 0.0  # worst violation of the first rows an input can change (k = 0)
+    decided_violation: float = 0.0  # worst violation of rows fixed by the current state (one-Euler-step bicycle k = 0)
     recovered: bool = False  # the solver's feasibility recovery found a hard-feasible start
     deadline_hit: bool = False  # the step deadline cut the solve short
 
@@ -82,25 +86,62 @@ class MpcController:
     def reset(self) -> None:
         self._plan: NDArray[np.float64] | None = None
         self._last_control = np.zeros(self.model.nu)
+        self._issued: deque[tuple[float, NDArray[np.float64]]] = deque()  # (time sent, command)
+        self._clock = 0.0  # time of the next step when the caller gives none (one step per dt)
 
-    def compensate_latency(self, state: ArrayLike, pedestrians: ArrayLike, velocities: ArrayLike | None):
-        """Predict ego (with the input being applied) and pedestrians (constant velocity) ahead by
-        the configured latency, so the plan starts where the vehicle will be when it acts."""
+    def compensate_latency(
+        self, state: ArrayLike, pedestrians: ArrayLike, velocities: ArrayLike | None, time: float | None = None
+    ):
+        """Predict ego (under the commands still in flight) and pedestrians (constant velocity)
+        ahead by the configured latency, so the plan starts where the vehicle will be when it acts."""
         peds = np.asarray(pedestrians, dtype=float) if np.size(pedestrians) else np.zeros((0, 2))
         n_p = peds.shape[0] if peds.ndim == 2 else 0
         peds, vels, _ = as_pedestrians(pedestrians, velocities, np.zeros(n_p))
-        return self._compensate(self.model.check_state(state), peds, vels, velocities is not None)
+        now = self._now(time)
+        return self._compensate(self.model.check_state(state), peds, vels, velocities is not None, now)
 
-    def _compensate(self, x, peds, vels, moving: bool):
+    def _now(self, t: float | None) -> float:
+        if t is None:
+            return self._clock
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not math.isfinite(t):
+            raise ValueError(f"time must be a finite number of seconds (or None), got {t!r}")
+        if self._issued and t < self._issued[-1][0] - 1e-9:
+            raise ValueError(f"time must not go back: got {t!r} after a step at {self._issued[-1][0]!r} (call reset())")
+        return float(t)
+
+    def _compensate(self, x, peds, vels, moving: bool, now: float):
+        """State at now + latency: a command sent at t_i acts from t_i + latency (as the plant
+        applies it), so the commands sent in the last ``latency`` seconds, and the one acting now,
+        are integrated piece by piece. Without a ``time`` the controller counts one step per dt."""
         lat = self.config.latency
         if lat <= 0:
             return x, peds
-        n_sub = max(1, int(np.ceil(lat / 0.02)))
-        for _ in range(n_sub):
-            x = self.model.step(x, self._last_control, lat / n_sub)
+        u = np.zeros(self.model.nu)  # acting now: the last command that took effect by now
+        pending = []
+        for t_i, c in self._issued:
+            if t_i + lat <= now + 1e-9:
+                u = c
+            else:
+                pending.append((t_i + lat - now, c))
+        t = 0.0
+        for t_on, c in pending:
+            if t_on > t + 1e-9:
+                x = self.model.step(x, u, t_on - t)
+                t = t_on
+            u = c
+        if lat > t + 1e-9:
+            x = self.model.step(x, u, lat - t)
         if moving:
             peds = peds + vels * lat
         return x, peds
+
+    def _sent(self, now: float, command: NDArray[np.float64]) -> None:
+        """Remember a command sent at ``now``; forget those no longer acting or pending."""
+        self._issued.append((now, command.copy()))
+        lat = self.config.latency
+        while len(self._issued) > 1 and self._issued[1][0] + lat <= now + 1e-9:
+            self._issued.popleft()  # a newer command has taken effect
+        self._clock = now + self.config.dt
 
     def step(
         self,
@@ -108,18 +149,22 @@ class MpcController:
         pedestrians: ArrayLike,
         velocities: ArrayLike | None,
         trusts: ArrayLike,
+        time: float | None = None,
     ) -> MpcSolution:
         """One MPC step from ego ``state`` with pedestrians (N_p, 2), velocities (N_p, 2) and
-        trusts (N_p,) in [0, 1]."""
-        t0 = time.perf_counter()
+        trusts (N_p,) in [0, 1]. ``time`` (s): when the state was measured and the command will be
+        sent; it places the commands still in flight for the latency compensation, so a caller
+        that runs faster or slower than dt should give it (default: one call per dt)."""
+        t0 = _wall()
         peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)  # refuse bad input first
-        x, peds = self._compensate(self.model.check_state(state), peds, vels, velocities is not None)
+        now = self._now(time)
+        x, peds = self._compensate(self.model.check_state(state), peds, vels, velocities is not None, now)
         p = self.problem
         p.set_checked_stage(x, peds, vels, tr, self._last_control)
         shifted = None if self._plan is None else np.vstack([self._plan[1:], self._plan[-1:]])
         u0 = p.initial_guess() if shifted is None else shifted
         deadline = self.config.step_deadline
-        res: SolveResult = self.solver.solve(p, u0, deadline=max(deadline - (time.perf_counter() - t0), 0.0))
+        res: SolveResult = self.solver.solve(p, u0, deadline=max(deadline - (_wall() - t0), 0.0))
         plan, status, source = res.inputs, res.status, "solver"
         fv, viol, message = res.first_row_violation, res.cbf_violation, res.message
         if res.status is not SolveStatus.OPTIMAL:
@@ -145,6 +190,7 @@ class MpcController:
             message = f"{message}; {note}" if message else note
         self._plan = plan.copy()
         self._last_control = plan[0].copy()
+        self._sent(now, self._last_control)
         return MpcSolution(
             control=plan[0].copy(),
             inputs=plan.copy(),
@@ -154,7 +200,7 @@ class MpcController:
             slack_used=viol > FEAS_TOL,
             cbf_violation=viol,
             iterations=res.iterations,
-            solve_time=time.perf_counter() - t0,
+            solve_time=_wall() - t0,
             message=message,
             source=source,
             first_row_violation=fv,

@@ -436,7 +436,7 @@ def drive(
         if sim.capture_due() and (max_frames is None or len(sim.frames) < max_frames):
             sim.capture()
         state, pos, vel, tr = sim.controller_inputs()
-        sol = ctl.step(state, pos, vel, tr)
+        sol = ctl.step(state, pos, vel, tr, time=sim.time)  # places the commands still in flight
         statuses.append(sol.status)
         fallbacks.append(sol.fallback)
         slack.append(sol.slack_used)
