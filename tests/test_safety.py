@@ -283,3 +283,35 @@ def test_coordinates_beyond_float_resolution_are_refused():
     ctl = MpcController(SingleIntegrator(), cost, MpcConfig(horizon=7, deadline=10.0))
     with pytest.raises(ValueError, match=r"beyond \+-1e\+12 m.*use a local origin"):
         ctl.step([1e200, 0.0], [[1e200, 3.0]], None, [0.5])
+
+
+#: World 2563 of the reliability study (single integrator, N_h 7, reference (1.5, 10)) at step 180,
+#: ego-centred, rounded to mm: the ego is hemmed in by pedestrians 5 and 7 at about R, with
+#: pedestrian 8 walking at it; the one way out is a dash at the input bound through the 6.35 m gap
+#: between pedestrians 7 and 8, which no constant-velocity candidate start linearises into.
+SQUEEZE_PEDS = np.array([[-1.685, 2.79], [-3.641, 2.703], [2.258, 3.75], [-6.437, -8.188], [-6.379, 0.746],
+                         [-2.987, 0.292], [-8.512, 5.464], [2.667, 1.436], [-2.179, -2.669]])  # fmt: skip
+SQUEEZE_VELS = np.array([[0.0, 0.0], [0.0, 0.0], [0.775, 0.172], [0.0, 0.0], [0.203, -0.821], [0.0, 0.0],
+                         [-0.763, -0.189], [0.0, 0.0], [0.524, 0.341]])  # fmt: skip
+SQUEEZE_TRUSTS = np.array([0.69, 0.267, 0.874, 0.186, 0.198, 0.495, 0.787, 0.518, 0.626])
+SQUEEZE_GOAL = (-8.623, 12.116)
+
+
+def test_no_relaxation_where_only_a_bang_bang_plan_is_safe():
+    """Before: every candidate start's hard QP was infeasible and the step relaxed (violation
+    0.03), although multi-start SLSQP finds a hard-feasible plan (a zig-zag at the input bound).
+    The feasibility SQP from bang-bang / pseudo-random starts finds one: no slack."""
+    ctl = _si(goal=SQUEEZE_GOAL)
+    sol = ctl.step([0.0, 0.0], SQUEEZE_PEDS, SQUEEZE_VELS, SQUEEZE_TRUSTS)
+    assert not sol.slack_used, sol.message
+    assert sol.status is SolveStatus.OPTIMAL and sol.recovered, sol.message
+    worst, first = _exact_violation(ctl, sol, SQUEEZE_PEDS, SQUEEZE_VELS, SQUEEZE_TRUSTS)
+    assert worst <= 1e-6 and first <= 1e-6
+    assert np.abs(sol.control).max() > 10.0  # the dash through the gap, not a creep
+    # the independent check (SLSQP on the plain numpy rows) agrees that a safe plan exists
+    p = _si(goal=SQUEEZE_GOAL).problem
+    p.set_stage([0.0, 0.0], SQUEEZE_PEDS, SQUEEZE_VELS, SQUEEZE_TRUSTS)
+    assert hard_feasible_exists(p, [np.zeros((7, 2))], seed=2)
+    # the solver alone is deterministic (fixed-seed starts): the same plan twice
+    again = _si(goal=SQUEEZE_GOAL).step([0.0, 0.0], SQUEEZE_PEDS, SQUEEZE_VELS, SQUEEZE_TRUSTS)
+    np.testing.assert_array_equal(again.inputs, sol.inputs)

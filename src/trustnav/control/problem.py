@@ -213,6 +213,16 @@ class MpcProblem:
     #: but left out of the QP and of feasibility
     decided_steps: int = 0
 
+    #: the SQP solver may run its feasibility (phase-1) SQP from varied starts when the recovery's
+    #: candidate starts fail (on for the single integrator; off for the bicycle, where phase-1
+    #: points led to worse closed loops)
+    feasibility_search: bool = False
+
+    def first_step_infeasible(self, tol: float) -> bool:
+        """True when the k = 0 rows admit no first input (a certificate that no plan is
+        hard-feasible); False when unknown."""
+        return False
+
     def _resize(self, n_p: int) -> None:
         self.n_p = n_p
         self.n_decided = n_p * self.decided_steps  # rows fixed by the current state
@@ -335,6 +345,8 @@ class MpcProblem:
 class SingleIntegratorProblem(MpcProblem):
     """`proposed` with x+ = x + u dt and q = ||u - u_bar||^2 (Section III)."""
 
+    feasibility_search = True
+
     def __init__(self, model: SingleIntegrator, cost: VelocityTrackingCost, config: MpcConfig) -> None:
         self.cost = cost
         self.goal = np.array(cost.goal)
@@ -376,6 +388,64 @@ class SingleIntegratorProblem(MpcProblem):
                     starts.append(np.clip(np.tile(s * d, (self.n_h, 1)), self.ulo, self.uhi))
                 starts.append(np.clip(dash * (top * d), self.ulo, self.uhi))
         return starts
+
+    def first_step_infeasible(self, tol: float, max_disks: int = 32) -> bool:
+        """True when no first input u_0 meets every k = 0 row to within ``tol``: then no plan is
+        hard-feasible (a certificate, so a solver can skip searching for one).
+
+        The k = 0 rows depend on u_0 alone: the next position p = u_0 dt must lie in the input box
+        times dt and outside the open disk |p - q_j(1)|^2 < R^2 + (1 - gamma_j) h_j(0) - tol of
+        each pedestrian. A generic linear function attains its minimum over that compact set (if
+        nonempty) at a vertex: a box corner, a crossing of a circle with a box edge, or of two
+        circles; so the set is empty exactly when no such point is in it. False (no certificate)
+        with more than ``max_disks`` disks reaching the box."""
+        if self.n_p == 0:
+            return False
+        c = self.config
+        r2 = c.safety_radius**2
+        lo, hi = c.dt * self.ulo, c.dt * self.uhi  # the box of p (ego at the origin)
+        q_next = self.peds + c.dt * self.vels if self.timing_code == 0 else self.peds
+        h0 = np.einsum("ij,ij->i", self.peds, self.peds) - r2
+        rho = r2 + self.one_minus_gamma * h0 - tol  # row_j >= -tol  <=>  |p - q_j(1)|^2 >= rho_j
+        gap = np.maximum(lo - q_next, 0.0) + np.maximum(q_next - hi, 0.0)  # centre to the box
+        near = (rho > 0.0) & (np.einsum("ij,ij->i", gap, gap) < rho)
+        if not near.any():
+            return False
+        if int(near.sum()) > max_disks:
+            return False
+        cen, rad2 = q_next[near], rho[near]
+        pts = [np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])]
+        for axis in (0, 1):  # circles crossing the box edges x = lo/hi (axis 0), y = lo/hi (axis 1)
+            other = 1 - axis
+            for edge in (lo[axis], hi[axis]):
+                s2 = rad2 - (edge - cen[:, axis]) ** 2
+                ok = s2 >= 0.0
+                s = np.sqrt(s2[ok])
+                for sign in (-1.0, 1.0):
+                    e = np.empty((s.size, 2))
+                    e[:, axis] = edge
+                    e[:, other] = cen[ok, other] + sign * s
+                    pts.append(e)
+        i, j = np.triu_indices(cen.shape[0], k=1)  # circle-circle crossings
+        if i.size:
+            d = cen[j] - cen[i]
+            dd = np.einsum("ij,ij->i", d, d)
+            a = (rad2[i] - rad2[j] + dd) / (2.0 * np.sqrt(np.maximum(dd, 1e-300)))
+            h2 = rad2[i] - a * a
+            ok = (dd > 0.0) & (h2 >= 0.0)
+            dist = np.sqrt(dd[ok])[:, None]
+            u = d[ok] / dist
+            base = cen[i[ok]] + a[ok, None] * u
+            perp = np.stack([-u[:, 1], u[:, 0]], axis=1) * np.sqrt(h2[ok])[:, None]
+            pts += [base + perp, base - perp]
+        p = np.concatenate(pts)
+        eps = 1e-12
+        p = p[np.all((p >= lo - eps) & (p <= hi + eps), axis=1)]
+        if p.shape[0] == 0:
+            return True
+        diff = p[:, None, :] - cen[None, :, :]
+        margin = (np.einsum("kji,kji->kj", diff, diff) - rad2[None, :]).min(axis=1)
+        return not bool((margin >= -1e-9).any())
 
     def cost_np(self, u_flat: ArrayLike) -> float:
         e = np.asarray(u_flat, dtype=float).reshape(self.n_h, 2) - self.ubar

@@ -31,6 +31,7 @@ __all__ = [
 
 DEADLINE = "deadline"  # QP flag: not started, it would not end before the deadline
 FEAS_TOL = 1e-6  # tolerance on CBF rows (units of the barrier, m^2) to call a solution feasible
+PRIMAL_TOL = 1e-9  # DAQP's tolerance on the QP's rows
 
 
 class SolveStatus(enum.Enum):
@@ -94,16 +95,50 @@ class SqpSolver:
     infeasible at one linearisation says little about the problem: the solver then runs a
     **feasibility recovery**, ranking the problem's candidate starts (braking, the reference, the
     best point so far, evasions from the binding pedestrians) by their exact CBF violation and
-    trying the hard QP at each until one is feasible, and continues with hard rows from there.
-    Only when no start gives a feasible hard QP does it relax: slacks with an exact L1 penalty
-    ``slack_penalty`` (plus a tiny quadratic term), one per CBF row for the most binding
-    pedestrians and fewer, shared ones for the rest (:meth:`_slack_columns`), so the QP stays
-    small with hundreds of pedestrians. Nonlinear models take a backtracking step on an L1 merit.
-    Every point evaluated is checked exactly; with a deadline (seconds) the best checked plan so
-    far is returned when it passes.
+    trying the hard QP at each until one is feasible, and continues with hard rows from there
+    (a point tried once in a solve is not tried again). When none is, a **feasibility (phase-1)
+    SQP** minimises the total violation from varied starts (bang-bang plans at the input bounds,
+    two-segment plans, and pseudo-random plans from a fixed seed, so a solve stays a pure function
+    of its problem; budget ``phase1_qps`` QPs per solve): hard-feasible sets can be thin regions
+    that only plans with varying inputs reach (a dash through a gap between pedestrians), which
+    no constant-velocity candidate linearises into. Only when that fails as well does it relax:
+    slacks with an exact L1 penalty ``slack_penalty`` (plus a tiny quadratic term), one per CBF
+    row for the most binding pedestrians and fewer, shared ones for the rest
+    (:meth:`_slack_columns`), so the QP stays small with hundreds of pedestrians; a hard-feasible
+    plan seen on the way beats a relaxed one. Nonlinear models take a backtracking step on an L1
+    merit. Every point evaluated is checked exactly; an unconverged solve whose best plan violates
+    a row runs the feasibility SQP from it (restoration). With a deadline (seconds) the best
+    checked plan so far is returned when it passes; the recovery, phase 1 included, stops at half
+    the deadline. Problems solved without an infeasible QP never reach any of this.
     """
 
     name = "sqp-daqp"
+
+    class _Recovery:
+        """Per-solve state of the feasibility recovery: the points whose hard QP was tried (an
+        infeasible one stays infeasible; from a feasible one the SQP came back to an infeasible
+        linearisation), and what is left of the feasibility SQP's QP budget."""
+
+        def __init__(self, qps: int) -> None:
+            self.tried: set[bytes] = set()
+            self.phase1_qps = qps
+            self.phase1_starts = 0  # starts of the feasibility SQP tried
+            self._hopeless: bool | None = None
+
+        def hopeless(self, p: MpcProblem) -> bool:
+            """True when the problem certifies that no plan is hard-feasible (its k = 0 rows admit no
+            first input; see ``SingleIntegratorProblem.first_step_infeasible``); asked once per solve."""
+            if self._hopeless is None:
+                self._hopeless = bool(p.first_step_infeasible(FEAS_TOL))
+            return self._hopeless
+
+        def first_time(self, u: NDArray[np.float64]) -> bool:
+            """True the first time a point is seen (and remembers it)."""
+            key = np.ascontiguousarray(u, dtype=float).tobytes()
+            if key in self.tried:
+                return False
+            self.tried.add(key)
+            return True
 
     def __init__(
         self,
@@ -115,11 +150,20 @@ class SqpSolver:
         row_slack_pedestrians: int = 8,
         slack_budget: int = 56,
         full_step_iterations: int = 10,
+        phase1_starts: int = 32,
+        phase1_iterations: int = 8,
+        phase1_qps: int = 48,
+        phase1_progress: float = 0.2,
+        phase1_seed: int = 0,
     ) -> None:
         if max_iter < 1 or not tol > 0 or not slack_penalty > 0 or not slack_quadratic > 0:
             raise ValueError("max_iter >= 1, tol > 0, slack_penalty > 0 and slack_quadratic > 0 are required")
         if max_restarts < 0 or row_slack_pedestrians < 0:
             raise ValueError("max_restarts and row_slack_pedestrians must be >= 0")
+        if phase1_starts < 0 or phase1_iterations < 1 or phase1_qps < 0 or not 0 <= phase1_progress < 1:
+            raise ValueError(
+                "phase1_starts >= 0, phase1_iterations >= 1, phase1_qps >= 0 and 0 <= phase1_progress < 1 are required"
+            )
         self.max_iter = max_iter
         self.tol = tol
         self.slack_penalty = slack_penalty
@@ -128,21 +172,28 @@ class SqpSolver:
         self.row_slack_pedestrians = row_slack_pedestrians
         self.slack_budget = slack_budget
         self.full_step_iterations = full_step_iterations
+        self.phase1_starts = phase1_starts
+        self.phase1_iterations = phase1_iterations
+        self.phase1_qps = phase1_qps
+        self.phase1_progress = phase1_progress
+        self.phase1_seed = phase1_seed
         # one DAQP workspace per (problem class, QP size, mode): problems of different models
         # never share a workspace, so a cached Hessian cannot be reused for another model
-        self._models: dict[tuple[str, int, int, bool], daqp.Model] = {}
-        self._qp_seconds: dict[tuple[str, int, int, bool], float] = {}  # last solve time per size
+        self._models: dict[tuple[str, int, int, bool | str], daqp.Model] = {}
+        self._qp_seconds: dict[tuple[str, int, int, bool | str], float] = {}  # last solve time per size
 
     # ---- QPs ----
-    def _slack_columns(self, p: MpcProblem) -> tuple[NDArray[np.int64], int]:
+    def _slack_columns(self, p: MpcProblem, row_pedestrians: int | None = None) -> tuple[NDArray[np.int64], int]:
         """Column (after the n inputs) of the slack of each CBF row, and the slack count.
 
         DAQP's work grows with (rows) x (variables)^2, so the slacks are budgeted: one per row for
-        the most binding pedestrians (at most ``row_slack_pedestrians``, and at most
-        ``slack_budget`` rows), one per pedestrian for up to 16 more, one shared by the rest.
+        the most binding pedestrians (at most ``row_slack_pedestrians``, or ``row_pedestrians``
+        when given, and at most ``slack_budget`` rows), one per pedestrian for up to 16 more, one
+        shared by the rest.
         """
         order = p.binding_pedestrians(p.n_p)
-        n_row = min(self.row_slack_pedestrians, p.n_p, self.slack_budget // p.n_h)
+        n_rp = self.row_slack_pedestrians if row_pedestrians is None else row_pedestrians
+        n_row = min(n_rp, p.n_p, self.slack_budget // p.n_h)
         n_own = min(p.n_p - n_row, 16)
         slot = np.empty(p.n_p, dtype=np.int64)
         slot[order] = np.arange(p.n_p)
@@ -153,10 +204,18 @@ class SqpSolver:
         n_shared = 1 if p.n_p > n_row + n_own else 0
         return cols, per_row + n_own + n_shared
 
-    def _qp(self, p: MpcProblem, slack: tuple[NDArray[np.int64], int] | None, until: float | None = None):
+    def _qp(
+        self,
+        p: MpcProblem,
+        slack: tuple[NDArray[np.int64], int] | None,
+        until: float | None = None,
+        phase1: bool = False,
+    ):
         """Solve the QP at the last built point; (step, flag), step None when infeasible or failed.
         With ``until`` (a perf_counter time) a QP whose last solve of this size would not end by
-        then is not started: (None, DEADLINE)."""
+        then is not started: (None, DEADLINE). ``phase1`` (with ``slack``): the feasibility QP of
+        :meth:`_phase1`, min ||dU||^2 + penalty * slacks (no cost term); its step comes back with
+        the slacks appended."""
         t_start = time.perf_counter()
         relaxed = slack is not None
         if slack is None:
@@ -165,9 +224,9 @@ class SqpSolver:
             cols, ns = slack
             n, m, mc = p.n, p.m, p.m_cbf
             h = np.zeros((n + ns, n + ns))
-            h[:n, :n] = p.H
+            h[:n, :n] = 2.0 * np.eye(n) if phase1 else p.H
             h[n:, n:] = np.eye(ns) * self.slack_quadratic
-            f = np.concatenate([p.f, np.full(ns, self.slack_penalty)])
+            f = np.concatenate([np.zeros(n) if phase1 else p.f, np.full(ns, self.slack_penalty)])
             a = np.zeros((m, n + ns))
             a[:, :n] = p.A
             a[np.arange(mc), n + cols] = 1.0
@@ -177,19 +236,23 @@ class SqpSolver:
             a = np.zeros((1, h.shape[0]))
             bl = np.append(bl, -1e20)
             bu = np.append(bu, 1e20)
-        key = (type(p).__name__, h.shape[0], a.shape[0], relaxed)
+        key = (type(p).__name__, h.shape[0], a.shape[0], "phase1" if phase1 else relaxed)
         if until is not None and t_start + self._qp_seconds.get(key, 0.0) > until:
             return None, DEADLINE
         model = self._models.get(key)
         if model is None:
             model = daqp.Model()
             flag, _ = model.setup(h, f, a, bu, bl)
+            # rows held to 1e-9 (DAQP's default is 1e-6): with a small gamma the barrier of
+            # `cbf_discrete` settles at -tol / gamma, microns inside R at 1e-6
+            model.settings = {"primal_tol": PRIMAL_TOL}
             if flag < 0:
                 return None, flag
             self._models[key] = model
         else:
-            # H of a linear model's problem is constant (per problem class): leave it in place
-            if p.nonlinear or relaxed:
+            # H of a linear model's problem is constant (per problem class): leave it in place;
+            # so is the feasibility QP's (per size)
+            if (p.nonlinear or relaxed) and not phase1:
                 flag = model.update(H=h, f=f, A=a, bupper=bu, blower=bl)
             else:
                 flag = model.update(f=f, A=a, bupper=bu, blower=bl)
@@ -199,7 +262,7 @@ class SqpSolver:
         self._qp_seconds[key] = time.perf_counter() - t_start
         if exitflag < 0:
             return None, exitflag
-        return np.asarray(x[: p.n]), exitflag
+        return np.asarray(x if phase1 else x[: p.n]), exitflag
 
     @staticmethod
     def _settle(p: MpcProblem, best: _Best, seen: list[NDArray[np.float64]]) -> None:
@@ -209,10 +272,25 @@ class SqpSolver:
                 best.offer(u, p.evaluate(u))
         seen.clear()
 
-    def _recover(self, p: MpcProblem, u: NDArray[np.float64], best: _Best, budget: int, until: float | None):
+    def _recover(
+        self,
+        p: MpcProblem,
+        u: NDArray[np.float64],
+        best: _Best,
+        budget: int,
+        until: float | None,
+        memo: SqpSolver._Recovery,
+    ):
         """Feasibility recovery: candidate starts ranked by exact violation; the first whose
-        hard QP is feasible. Returns (start, step, cost, tried) or (None, None, nan, tried)."""
+        hard QP is feasible. Points tried before in this solve are skipped (the same point gives
+        the same QP). When none is left, or the budget of ``budget`` QPs is spent, the
+        feasibility SQP of :meth:`_phase1` runs from varied starts. Returns (start, step, cost,
+        tried) or (None, None, nan, tried), tried counting the candidate starts only."""
         p.build(u)  # binding pedestrians at the point where the QP failed
+        memo.first_time(u)
+        if budget <= 0:  # the candidates' budget is spent: the feasibility SQP only
+            start, step, cost = self._phase1(p, best, until, memo)
+            return start, step, cost, 0
         starts = [u] + ([best.u] if best.u is not None else []) + p.candidate_starts()
         ranked = []
         for c in starts:
@@ -227,14 +305,122 @@ class SqpSolver:
                 continue
             if tried >= budget:
                 break
+            if not memo.first_time(c):  # tried already (a duplicate, or a start that led here)
+                continue
             cost = p.build(c)
             step, flag = self._qp(p, None, until)
             if flag == DEADLINE:
-                break
+                return None, None, math.nan, tried
             tried += 1
             if step is not None:
                 return c.copy(), step, cost, tried
-        return None, None, math.nan, tried
+        start, step, cost = self._phase1(p, best, until, memo)
+        return start, step, cost, tried
+
+    def _phase1_plans(self, p: MpcProblem) -> list[NDArray[np.float64]]:
+        """Starts of the feasibility SQP, the same at every call: constant inputs at the corners
+        and edge midpoints of the input box (bang-bang), then, from a generator seeded with
+        ``phase1_seed``, by turns a uniform random plan, two segments of box corners (or rest)
+        switching at a random step, and a random corner at every step."""
+        lo, hi = p.ulo, p.uhi
+        nu, n_h = lo.size, p.n_h
+        mid = np.minimum(np.maximum(0.0, lo), hi)
+        levels = np.stack([lo, mid, hi])
+        grid = np.indices((3,) * nu).reshape(nu, -1).T  # (3^nu, nu) level indices, row-major
+        corners = [levels[idx, np.arange(nu)] for idx in grid if (idx != 1).any()]
+        plans = [np.tile(c, (n_h, 1)) for c in corners]
+        segments = np.array([*corners, mid])
+        rng = np.random.default_rng(self.phase1_seed)
+        for i in range(max(0, self.phase1_starts - len(plans))):
+            if i % 3 == 0:
+                plan = rng.uniform(lo, hi, size=(n_h, nu))
+            elif i % 3 == 1:
+                k = int(rng.integers(1, n_h)) if n_h > 1 else 1
+                a, b = rng.integers(len(segments), size=2)
+                plan = np.vstack([np.tile(segments[a], (k, 1)), np.tile(segments[b], (n_h - k, 1))])
+            else:
+                plan = segments[rng.integers(len(corners), size=n_h)]
+            plans.append(plan)
+        return plans[: self.phase1_starts]
+
+    def _phase1(self, p: MpcProblem, best: _Best, until: float | None, memo: SqpSolver._Recovery):
+        """Feasibility (phase-1) SQP from the starts of :meth:`_phase1_plans`, the least
+        violating first: each iteration solves the QP min ||dU||^2 + penalty * slacks subject to
+        the slackened linearised rows (no cost term) and takes a backtracking step on the exact
+        total violation. As soon as the linearised rows at an iterate hold without slack, the hard
+        QP there is feasible: (start, step, cost). (None, None, nan) when the per-solve budget of
+        ``phase1_qps`` QPs, the starts or the time run out. Every point is checked and offered."""
+        if memo.phase1_qps <= 0 or p.m_cbf == 0 or memo.hopeless(p):
+            return None, None, math.nan
+        ranked = []
+        for c in self._phase1_plans(p):
+            c = np.minimum(np.maximum(c, p.ulo), p.uhi)
+            chk = p.evaluate(c)
+            best.offer(c, chk)
+            ranked.append((chk.total, len(ranked), c))
+        ranked.sort(key=lambda r: (r[0], r[1]))
+        for _, _, u in ranked:
+            if memo.phase1_qps <= 0 or (until is not None and time.perf_counter() > until):
+                break
+            if not memo.first_time(u):
+                continue
+            memo.phase1_starts += 1
+            out = self._feasibility_sqp(p, u, best, until, memo, to_hard_qp=True)
+            if out is not None:
+                memo.first_time(out[0])  # a later recovery does not start here again
+                return out
+        return None, None, math.nan
+
+    def _feasibility_sqp(
+        self,
+        p: MpcProblem,
+        u: NDArray[np.float64],
+        best: _Best,
+        until: float | None,
+        memo: SqpSolver._Recovery,
+        to_hard_qp: bool,
+    ):
+        """Iterations of the feasibility SQP of :meth:`_phase1` from ``u`` (at most
+        ``phase1_iterations``, charged to the per-solve QP budget). With ``to_hard_qp`` it ends
+        at the first iterate whose hard QP is feasible and returns (start, step, cost); otherwise
+        it drives the exact violation down (every point offered to ``best``) and returns None.
+        None also when it stalls or runs out of budget or time."""
+        cost = p.build(u)
+        chk = p.check_built(cost)
+        for _ in range(self.phase1_iterations):
+            if memo.phase1_qps <= 0 or (not to_hard_qp and chk.worst <= 1e-3 * FEAS_TOL):
+                return None
+            viol = chk.total
+            # one slack per pedestrian (the 16 most binding) and one shared: the total violation
+            # needs no slack per row, and the QP is 2-3x faster than with them
+            x, flag = self._qp(p, self._slack_columns(p, row_pedestrians=0), until, phase1=True)
+            memo.phase1_qps -= 1
+            if x is None:
+                return None
+            if to_hard_qp and float(x[p.n :].max(initial=0.0)) <= 1e-9:
+                # the linearised rows at u hold without slack: the hard QP at u is feasible
+                step, flag = self._qp(p, None, until)
+                memo.phase1_qps -= 1
+                if step is not None:
+                    return u.copy(), step, cost
+                if flag == DEADLINE:
+                    return None
+            d = x[: p.n].reshape(u.shape)
+            alpha = 1.0
+            for _ in range(8):
+                trial = np.minimum(np.maximum(u + alpha * d, p.ulo), p.uhi)
+                c1 = p.build(trial)
+                c_chk = p.check_built(c1)
+                best.offer(trial, c_chk)
+                if c_chk.total < viol:
+                    break
+                alpha *= 0.5
+            else:
+                return None  # no decrease along the step: a local minimum of the violation
+            if c_chk.total > (1.0 - self.phase1_progress) * viol or not memo.first_time(trial):
+                return None  # stalled, or on a path already followed
+            u, cost, chk = trial, c1, c_chk  # the buffers hold the data at u
+        return None
 
     def solve(self, problem: MpcProblem, u0: NDArray[np.float64], deadline: float | None = None) -> SolveResult:
         t0 = time.perf_counter()
@@ -249,6 +435,10 @@ class SqpSolver:
         slack: tuple[NDArray[np.int64], int] | None = None
         converged = recovered = deadline_hit = second_chance = False
         restarts = 0
+        # the feasibility SQP is part of the recovery (off with max_restarts = 0), for problems that
+        # ask for it (validated on the single integrator)
+        phase1 = self.max_restarts > 0 and p.feasibility_search
+        memo = self._Recovery(self.phase1_qps if phase1 else 0)
         message = ""
         it = 0
         cost = math.nan
@@ -265,9 +455,11 @@ class SqpSolver:
             step, flag = self._qp(p, slack, until if it > 1 else None)  # the first QP always runs
             if step is None and flag != DEADLINE and slack is None and p.m_cbf > 0:
                 self._settle(p, best, seen)
-                if restarts < self.max_restarts:
+                if self.max_restarts > 0 and (
+                    restarts < self.max_restarts or (memo.phase1_qps > 0 and not memo.hopeless(p))
+                ):
                     start, step, c_start, tried = self._recover(
-                        p, u, best, self.max_restarts - restarts, until_recovery
+                        p, u, best, self.max_restarts - restarts, until_recovery, memo
                     )
                     restarts += tried
                     if step is not None:
@@ -313,6 +505,13 @@ class SqpSolver:
         # the final iterate, checked exactly
         final = p.evaluate(u) if math.isfinite(float(u.sum())) else None
         done = converged and final is not None and (final.worst <= FEAS_TOL or slack is not None)
+        relaxation_beaten = False
+        if done and slack is not None and final.worst > FEAS_TOL:
+            # the relaxation converged to a violating plan, but a hard-feasible plan may have been
+            # seen on the way (a recovered start, a feasibility SQP iterate): it beats the relaxation
+            self._settle(p, best, seen)
+            relaxation_beaten = best.check.worst <= FEAS_TOL
+            done = not relaxation_beaten
         if not done:
             if final is not None:
                 best.offer(u, final)
@@ -322,6 +521,11 @@ class SqpSolver:
                 for c in p.candidate_starts():
                     c = np.minimum(np.maximum(c, p.ulo), p.uhi)
                     best.offer(c, p.evaluate(c))
+                if best.check.worst > FEAS_TOL and best.u is not None and memo.phase1_qps > 0 and not memo.hopeless(p):
+                    # restoration: the feasibility SQP from the best plan (its exact violation is
+                    # often second order once its linearisation holds)
+                    self._feasibility_sqp(p, best.u, best, until, memo, to_hard_qp=False)
+        restarts += memo.phase1_starts  # reported: all starts tried
         elapsed = time.perf_counter() - t0
         if best.u is None and not done:  # nothing finite was ever evaluated
             return SolveResult(u, SolveStatus.FAILED, it, math.nan, math.nan, True, message or "non-finite iterate",
@@ -334,6 +538,10 @@ class SqpSolver:
         slack_used = out_hv > FEAS_TOL
         if step is None and message.startswith("DAQP"):
             status = SolveStatus.FAILED
+        elif relaxation_beaten:
+            status = SolveStatus.MAX_ITER
+            message = (f"the relaxed SQP converged to a plan violating CBF rows by {final.worst:.3g}; "
+                       "the best hard-feasible plan seen returned")  # fmt: skip
         elif not converged:
             status = SolveStatus.MAX_ITER
             why = f"deadline of {deadline * 1e3:.1f} ms" if deadline_hit else f"{self.max_iter} SQP iterations"
