@@ -108,8 +108,8 @@ class SqpSolver:
     plan seen on the way beats a relaxed one. Nonlinear models take a backtracking step on an L1
     merit. Every point evaluated is checked exactly; an unconverged solve whose best plan violates
     a row runs the feasibility SQP from it (restoration). With a deadline (seconds) the best
-    checked plan so far is returned when it passes; the recovery, phase 1 included, stops at half
-    the deadline. Problems solved without an infeasible QP never reach any of this.
+    checked plan so far is returned when it passes; the recovery, phase 1 included, stops at 80 %
+    of the deadline (the rest is for relaxing). Problems solved without an infeasible QP never reach any of this.
     """
 
     name = "sqp-daqp"
@@ -426,7 +426,7 @@ class SqpSolver:
         t0 = time.perf_counter()
 
         until = None if deadline is None else t0 + deadline
-        until_recovery = None if deadline is None else t0 + 0.5 * deadline  # half left for relaxing
+        until_recovery = None if deadline is None else t0 + 0.8 * deadline  # the rest for relaxing
 
         p = problem
         u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
