@@ -315,3 +315,38 @@ def test_no_relaxation_where_only_a_bang_bang_plan_is_safe():
     # the solver alone is deterministic (fixed-seed starts): the same plan twice
     again = _si(goal=SQUEEZE_GOAL).step([0.0, 0.0], SQUEEZE_PEDS, SQUEEZE_VELS, SQUEEZE_TRUSTS)
     np.testing.assert_array_equal(again.inputs, sol.inputs)
+
+
+@pytest.mark.parametrize("seed", [18, 42])
+def test_bicycle_keeps_the_margin_on_the_finer_plant_when_every_step_is_safe(seed, monkeypatch):
+    """Random bicycle worlds where every step had a hard-feasible plan yet the car came 11-14 cm
+    inside R: the controller predicted with one Euler step of 0.1 s while the plant integrates
+    the same bicycle in 1 ms steps. With `f_e` in 10 ms sub-steps (the default) the margin holds;
+    with one Euler step per dt the same world breaches."""
+    import trustnav.sim.random_worlds as rw
+
+    world = _patient(sample_world(RandomWorldSpec(family="bicycle"), seed))
+    rec = run_world(world)
+    assert rec["relaxed_steps"] == 0
+    assert not rec["breach"] and rec["min_distance"] >= world.config.safety_radius
+    monkeypatch.setattr(rw, "KinematicBicycle", lambda: KinematicBicycle(integration_step=None))
+    euler = run_world(world)
+    assert euler["relaxed_steps"] == 0 and euler["breach"]
+    assert euler["min_distance"] < world.config.safety_radius - 0.05
+
+
+def test_closest_approach_between_control_steps_is_exact_for_linear_motion():
+    from trustnav.sim.random_worlds import _path_min_distance
+
+    # ego from (-1, 3) to (1, 3) while a pedestrian stands at the origin: closest 3 m at mid-step,
+    # although both ends are sqrt(10) m away; a walker moving with the ego stays 5 m away
+    path = np.array([[-1.0, 3.0], [1.0, 3.0]])
+    times = np.array([0.0, 0.05])
+    d = _path_min_distance(path, times, np.array([[0.0, 0.0], [-1.0, -2.0]]), np.array([[0.0, 0.0], [40.0, 0.0]]))
+    np.testing.assert_allclose(d, [3.0, 5.0])
+    # the continuous-time radius of docs/reliability.md: a chord of length c whose ends are
+    # R' = sqrt(R^2 + c^2 / 4) away touches R = 3 and no more
+    c = 1.0
+    end = np.sqrt(9.0 + c * c / 4)
+    path = np.array([[-c / 2, np.sqrt(end**2 - c * c / 4)], [c / 2, np.sqrt(end**2 - c * c / 4)]])
+    assert _path_min_distance(path, times, np.zeros((1, 2)), np.zeros((1, 2)))[0] == pytest.approx(3.0)
