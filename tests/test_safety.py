@@ -350,3 +350,23 @@ def test_closest_approach_between_control_steps_is_exact_for_linear_motion():
     end = np.sqrt(9.0 + c * c / 4)
     path = np.array([[-c / 2, np.sqrt(end**2 - c * c / 4)], [c / 2, np.sqrt(end**2 - c * c / 4)]])
     assert _path_min_distance(path, times, np.zeros((1, 2)), np.zeros((1, 2)))[0] == pytest.approx(3.0)
+
+
+def test_continuous_time_radius_keeps_r_between_control_steps():
+    """World 9825 skims R = 3 at its control steps and cuts 4 cm inside it along the chord between
+    two of them; planned with R' = continuous_time_radius(R, top ego + pedestrian speed, dt) the
+    whole path stays outside R."""
+    from trustnav.control import continuous_time_radius
+
+    world = _patient(sample_world(RandomWorldSpec(), 9825))
+    plain = run_world(world)
+    assert not plain["breach"] and plain["min_distance_continuous"] < 2.97
+    top = float(np.hypot(*SingleIntegrator().input_bounds()[1])) + float(np.linalg.norm(world.velocities, axis=1).max())
+    r_cont = continuous_time_radius(3.0, top, world.config.dt)
+    assert 3.05 < r_cont < 3.1
+    safe = run_world(dataclasses.replace(world, config=dataclasses.replace(world.config, safety_radius=r_cont)))
+    assert safe["relaxed_steps"] == 0 and safe["min_distance_continuous"] >= 3.0
+    with pytest.raises(ValueError, match="max_relative_speed"):
+        continuous_time_radius(3.0, -1.0, 0.05)
+    with pytest.raises(ValueError, match="dt must be a number"):
+        continuous_time_radius(3.0, 1.0, "0.05")

@@ -1,7 +1,7 @@
 """Trust-adaptive MPC with discrete CBF constraints (`proposed`, `cbf_imp`): models, barrier,
 references, problems, solvers and the controller. Imports trustnav.trust only (for `weight`)."""
 
-from trustnav.control.barrier import TIMINGS, barrier, cbf_rows, predict_pedestrians
+from trustnav.control.barrier import TIMINGS, barrier, cbf_rows, continuous_time_radius, predict_pedestrians
 from trustnav.control.models import DynamicsModel, KinematicBicycle, SingleIntegrator
 from trustnav.control.mpc import MpcController, MpcSolution
 from trustnav.control.problem import (
@@ -47,6 +47,7 @@ __all__ = [
     "VelocityTrackingCost",
     "barrier",
     "cbf_rows",
+    "continuous_time_radius",
     "make_problem",
     "make_solver",
     "predict_pedestrians",

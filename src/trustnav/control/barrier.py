@@ -7,7 +7,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["TIMINGS", "Timing", "barrier", "cbf_rows", "predict_pedestrians"]
+__all__ = ["TIMINGS", "Timing", "barrier", "cbf_rows", "continuous_time_radius", "predict_pedestrians"]
 
 #: Where the pedestrian is taken in the h(k+1) term of `cbf_imp`:
 #: "paper": at its predicted position x_p(t+k+1), as the paper writes `cbf_imp` (default);
@@ -20,6 +20,25 @@ def barrier(ego: ArrayLike, pedestrians: ArrayLike, radius: float) -> NDArray[np
     """`h_quad`: phi = ||x_e - x_j||^2 - R^2, broadcast over leading axes."""
     d = np.asarray(ego, dtype=float)[..., None, :] - np.asarray(pedestrians, dtype=float)
     return np.einsum("...i,...i->...", d, d) - radius * radius
+
+
+def continuous_time_radius(radius: float, max_relative_speed: float, dt: float) -> float:
+    """Margin R' that keeps R between control steps: `cbf_discrete` holds h >= 0 at the steps
+    only, and a chord of length c (the relative displacement in one step) whose ends are R' =
+    sqrt(R^2 + c^2 / 4) from a pedestrian stays R away from it all along (relative motion linear
+    within the step, as for the single integrator and constant-velocity pedestrians; the bicycle's
+    arc is within its chord's sagitta of it). c = max_relative_speed * dt: the ego's largest speed
+    plus the pedestrians'."""
+    for name, value in (("radius", radius), ("max_relative_speed", max_relative_speed), ("dt", dt)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+    if not 0 < radius < np.inf or not 0 <= max_relative_speed < np.inf or not 0 < dt < np.inf:
+        raise ValueError(
+            f"need radius > 0, max_relative_speed >= 0 and dt > 0 (finite), got {radius!r}, "
+            f"{max_relative_speed!r}, {dt!r}"
+        )
+    c = float(max_relative_speed) * float(dt)
+    return float(np.sqrt(radius * radius + 0.25 * c * c))
 
 
 def predict_pedestrians(pedestrians: ArrayLike, velocities: ArrayLike, steps: int, dt: float) -> NDArray[np.float64]:
