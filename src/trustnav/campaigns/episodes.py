@@ -133,6 +133,24 @@ def _random(task: EpisodeTask) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------- paper scenarios
 
 
+def _safety_fields(mins: list[float], breach: bool, radius: float, relaxed: int, m: dict[str, Any]) -> dict[str, Any]:
+    """The safety part of a ``paper`` / ``drive`` record (no independent check, no recovery or
+    deadline counts there): closest approaches, breach, R, relaxed, fallback and failed steps."""
+    return {
+        "min_distance": float(min(mins)),
+        "breach": breach,
+        "safety_radius": radius,
+        "relaxed_steps": relaxed,
+        "relaxed_checked": 0,
+        "relaxed_but_feasible": 0,
+        "fallback_steps": m["fallback_steps"],
+        "recovered_steps": None,
+        "deadline_steps": None,
+        "failed_steps": m["solver_failures"],
+        "ped_min_distance": mins,
+    }
+
+
 @dataclass(frozen=True)
 class _DeadlineScenario(PaperScenario):
     """A paper scenario whose controller has the given step deadline (s; None: dt/2 wall clock)."""
@@ -177,19 +195,9 @@ def _paper(task: EpisodeTask) -> dict[str, Any]:
         "steps": steps,
         "reached_goal": bool(ep.reached_goal),
         "time_to_goal": None if m["steps_to_goal"] is None else m["steps_to_goal"] * sc.dt,
-        "min_distance": float(min(mins)),
-        "breach": bool(m["margin_violations"] > 0),
-        "safety_radius": sc.safety_radius,
-        "relaxed_steps": m["slack_steps"],
-        "relaxed_checked": 0,
-        "relaxed_but_feasible": 0,
-        "fallback_steps": m["fallback_steps"],
-        "recovered_steps": None,
-        "deadline_steps": None,
-        "failed_steps": m["solver_failures"],
+        **_safety_fields(mins, bool(m["margin_violations"] > 0), sc.safety_radius, m["slack_steps"], m),
         "horizon": ep.horizon,
         "n_p": n,
-        "ped_min_distance": mins,
         "ped_trust": [float(t) for t in trusts],
         **_times(ep.solve_times * 1e3),
         "extra": {k: v for k, v in m.items() if k != "median_solve_ms"},  # timing lives in step_ms_*
@@ -229,19 +237,9 @@ def _drive(task: EpisodeTask) -> dict[str, Any]:
         "steps": m["control_steps"],
         "reached_goal": m["reached_goal"],
         "time_to_goal": m["time_to_goal"],
-        "min_distance": float(min(mins)),
-        "breach": bool(min(mins) < radius - 1e-6),
-        "safety_radius": radius,
-        "relaxed_steps": m["relaxed_steps"],
-        "relaxed_checked": 0,
-        "relaxed_but_feasible": 0,
-        "fallback_steps": m["fallback_steps"],
-        "recovered_steps": None,
-        "deadline_steps": None,
-        "failed_steps": m["solver_failures"],
+        **_safety_fields(mins, bool(min(mins) < radius - 1e-6), radius, m["relaxed_steps"], m),
         "horizon": sc.control.horizon,
         "n_p": len(sc.pedestrians),
-        "ped_min_distance": mins,
         "ped_trust": ped_trust,
         **_times(r.solve_times * 1e3),
         "extra": {k: v for k, v in m.items() if k not in ("per_frame", "solve_ms_median", "solve_ms_p95")},

@@ -7,6 +7,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from trustnav.trust.params import as_number
+
 __all__ = ["TIMINGS", "Timing", "barrier", "cbf_rows", "continuous_time_radius", "predict_pedestrians"]
 
 #: Where the pedestrian is taken in the h(k+1) term of `cbf_imp`:
@@ -30,8 +32,7 @@ def continuous_time_radius(radius: float, max_relative_speed: float, dt: float) 
     arc is within its chord's sagitta of it). c = max_relative_speed * dt: the ego's largest speed
     plus the pedestrians'."""
     for name, value in (("radius", radius), ("max_relative_speed", max_relative_speed), ("dt", dt)):
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-            raise ValueError(f"{name} must be a number, got {value!r}")
+        as_number(name, value)
     if not 0 < radius < np.inf or not 0 <= max_relative_speed < np.inf or not 0 < dt < np.inf:
         raise ValueError(
             f"need radius > 0, max_relative_speed >= 0 and dt > 0 (finite), got {radius!r}, "

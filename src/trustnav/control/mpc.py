@@ -26,6 +26,7 @@ from trustnav.control.solvers import (
     SqpSolver,
     rank_key,
 )
+from trustnav.trust.params import as_number
 
 __all__ = ["MpcController", "MpcSolution"]
 
@@ -103,7 +104,11 @@ class MpcController:
     def _now(self, t: float | None) -> float:
         if t is None:
             return self._clock
-        if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not math.isfinite(t):
+        try:
+            finite = math.isfinite(as_number("time", t))
+        except ValueError:
+            finite = False
+        if not finite:
             raise ValueError(f"time must be a finite number of seconds (or None), got {t!r}")
         if self._issued and t < self._issued[-1][0] - 1e-9:
             raise ValueError(f"time must not go back: got {t!r} after a step at {self._issued[-1][0]!r} (call reset())")

@@ -19,14 +19,11 @@ next from the region of its own landmarks, as MediaPipe does, while the detector
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import queue
-import sys
 import time
 import warnings
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
+from trustnav.perception.frames import quiet_stderr
 from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = ["BLAZEPOSE_TO_COCO", "MEDIAPIPE_VERSION", "MediaPipeConfig", "MediaPipePoseBackend", "load_mediapipe"]
@@ -189,25 +187,6 @@ def roi_from_alignment(center: NDArray, scale_point: NDArray) -> NDArray[np.floa
     return np.array([center[0], center[1], side, rotation])
 
 
-@contextlib.contextmanager
-def _quiet_stderr() -> Iterator[None]:
-    """Silence the C++ start-up chatter of MediaPipe/TFLite (written straight to file descriptor 2)."""
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # no real stderr (e.g. captured): nothing to silence
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(fd)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), fd)
-            yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-
-
 class _Graphs:
     """One detector graph and one landmark graph; each runs single-threaded, so one per worker."""
 
@@ -222,7 +201,7 @@ class _Graphs:
             return solution_base.SolutionBase(graph_config=config)
 
         self.rect = rect_pb2.NormalizedRect
-        with _quiet_stderr():
+        with quiet_stderr():  # MediaPipe/TFLite start-up chatter
             self.detector = graph(_DETECTOR_GRAPH)
             self.landmarker = graph(_LANDMARK_GRAPH)
             blank = np.zeros((64, 64, 3), dtype=np.uint8)

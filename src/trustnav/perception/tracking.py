@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trustnav.perception.types import Person
+from trustnav.trust.params import as_number
 
 __all__ = ["PersonTracker", "TrackerConfig"]
 
@@ -49,8 +50,11 @@ class PersonTracker:
     """Assigns a track ID to every person of each frame (call :meth:`update` once per frame, in order)."""
 
     def __init__(self, config: TrackerConfig | None = None, fps: float = 10.0) -> None:
-        numeric = isinstance(fps, (int, float, np.integer, np.floating)) and not isinstance(fps, bool)
-        if not numeric or not 0 < fps < math.inf:
+        try:
+            ok = 0 < as_number("fps", fps) < math.inf
+        except ValueError:
+            ok = False
+        if not ok:
             raise ValueError(f"fps must be a positive finite number of frames per second, got {fps!r}")
         self.config = config or TrackerConfig()
         self.fps = fps
