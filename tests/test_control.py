@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from trustnav.control import (
-    BicycleProblem,
     BoundedProportionalReference,
     KinematicBicycle,
     LaneTrackingCost,
     MpcConfig,
     MpcController,
+    MpcProblem,
     SingleIntegrator,
-    SingleIntegratorProblem,
     SlsqpSolver,
     SolveStatus,
     SqpSolver,
@@ -27,7 +26,7 @@ from trustnav.control import (
 def _si_problem(timing="paper", n_h=7, n_p=3, seed=0):
     rng = np.random.default_rng(seed)
     cfg = MpcConfig(horizon=n_h, timing=timing)
-    prob = SingleIntegratorProblem(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg)
+    prob = MpcProblem(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg)
     peds = rng.uniform(5, 45, size=(n_p, 2))
     prob.set_stage(rng.uniform(5, 45, 2), peds, rng.normal(0, 1, (n_p, 2)), rng.uniform(0, 1, n_p))
     return prob, rng
@@ -37,7 +36,7 @@ def _bike_problem(timing="paper", n_h=7, n_p=3, seed=0, integration_step=0.01):
     rng = np.random.default_rng(seed)
     cfg = MpcConfig(horizon=n_h, dt=0.1, safety_radius=2.5, timing=timing)
     model = KinematicBicycle(integration_step=integration_step)
-    prob = BicycleProblem(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
+    prob = MpcProblem(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg)
     peds = rng.uniform([10, -8], [40, 8], size=(n_p, 2))
     prob.set_stage([5.0, 0.5, 0.1, 6.0], peds, rng.normal(0, 1, (n_p, 2)), rng.uniform(0, 1, n_p), [0.01, 0.2])
     return prob, rng

@@ -1,17 +1,27 @@
-"""Trust-adaptive MPC with discrete CBF constraints (`proposed`, `cbf_imp`): models, barrier,
-references, problems, solvers and the controller. Imports trustnav.trust only (for `weight`)."""
+"""Trust-adaptive MPC with discrete CBF constraints (`proposed`, `cbf_imp`): models, barriers,
+costs, references, the problem assembled from them, solvers and the controller. Models, costs
+and barriers are protocols (:class:`Dynamics`, :class:`Cost`, :class:`Barrier`): a user adds
+their own without editing trustnav. Imports trustnav.trust only (for `weight`)."""
 
-from trustnav.control.barrier import TIMINGS, barrier, cbf_rows, continuous_time_radius, predict_pedestrians
-from trustnav.control.models import DynamicsModel, KinematicBicycle, SingleIntegrator
+from trustnav.control.barrier import (
+    TIMINGS,
+    Barrier,
+    PedestrianBarrier,
+    barrier,
+    cbf_rows,
+    continuous_time_radius,
+    h_quad,
+    predict_pedestrians,
+)
+from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, TrackingWeights, VelocityTrackingCost
+from trustnav.control.models import Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
 from trustnav.control.mpc import MpcController, MpcSolution
 from trustnav.control.problem import (
+    FUSED_KERNELS,
     BicycleProblem,
-    LaneTrackingCost,
     MpcConfig,
     MpcProblem,
     SingleIntegratorProblem,
-    TrackingWeights,
-    VelocityTrackingCost,
     make_problem,
 )
 from trustnav.control.reference import BoundedProportionalReference
@@ -26,10 +36,14 @@ from trustnav.control.solvers import (
 )
 
 __all__ = [
+    "FUSED_KERNELS",
     "TIMINGS",
     "AuthorsSlsqpSolver",
+    "Barrier",
     "BicycleProblem",
     "BoundedProportionalReference",
+    "Cost",
+    "Dynamics",
     "DynamicsModel",
     "KinematicBicycle",
     "LaneTrackingCost",
@@ -37,6 +51,8 @@ __all__ = [
     "MpcController",
     "MpcProblem",
     "MpcSolution",
+    "PedestrianBarrier",
+    "PositionTrackingCost",
     "SingleIntegrator",
     "SingleIntegratorProblem",
     "SlsqpSolver",
@@ -48,6 +64,7 @@ __all__ = [
     "barrier",
     "cbf_rows",
     "continuous_time_radius",
+    "h_quad",
     "make_problem",
     "make_solver",
     "predict_pedestrians",

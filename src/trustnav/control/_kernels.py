@@ -19,12 +19,15 @@ import math
 import numpy as np
 from numba import njit
 
+from trustnav.control.barrier import h_quad
+
 INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
 
 
 @njit(cache=True, fastmath=False)
-def _cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, row0, nsimple):
-    """CBF rows from ego positions pos (N+1, 2) and their sensitivities sens (N+1, 2, n)."""
+def cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, stride, a_mat, bl, bu, g, nsimple):
+    """Pedestrian CBF rows of `cbf_imp` (barrier `h_quad`) from ego positions pos (N+1, 2) and
+    their sensitivities sens (N+1, 2, n): row k * stride + j for pedestrian j at step k."""
     n_h = pos.shape[0] - 1
     n_p = peds.shape[0]
     n = sens.shape[2]
@@ -43,10 +46,10 @@ def _cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, row0
             dkx = pos[k, 0] - qkx
             dky = pos[k, 1] - qky
             w = omg[j]
-            r = row0 + k * n_p + j
-            val = dnx * dnx + dny * dny - r2 - w * (dkx * dkx + dky * dky - r2)
-            g[k * n_p + j] = val
-            for i in range(n):
+            r = k * stride + j
+            val = h_quad(dnx, dny, r2) - w * h_quad(dkx, dky, r2)
+            g[r] = val
+            for i in range(n):  # gradient of h_quad: 2 (x_e - x_j)
                 a_mat[r, i] = 2.0 * (dnx * sens[k + 1, 0, i] + dny * sens[k + 1, 1, i]) - 2.0 * w * (
                     dkx * sens[k, 0, i] + dky * sens[k, 1, i]
                 )
@@ -55,14 +58,15 @@ def _cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, row0
 
 
 @njit(cache=True)
-def single_integrator_qp(x0, u, ubar, peds, vels, omg, r2, dt, timing, ulo, uhi, f, a_mat, bl, bu, g):
-    """Single integrator x+ = x + u dt, cost sum ||u - u_bar||^2 (H = 2 I is constant)."""
+def single_integrator_qp(
+    x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+):  # fmt: skip
+    """Single integrator x+ = x + u dt, cost sum ||u - u_bar||^2 (H = 2 I is constant); the
+    positions and their sensitivities are left in ``pos`` and ``sens`` (sens[0] = 0)."""
     n_h = u.shape[0]
     n = 2 * n_h
-    pos = np.empty((n_h + 1, 2))
     pos[0, 0] = x0[0]
     pos[0, 1] = x0[1]
-    sens = np.zeros((n_h + 1, 2, n))
     cost = 0.0
     for k in range(n_h):
         for d in range(2):
@@ -77,7 +81,7 @@ def single_integrator_qp(x0, u, ubar, peds, vels, omg, r2, dt, timing, ulo, uhi,
             sens[k + 1, 1, i] = sens[k, 1, i]
         sens[k + 1, 0, 2 * k] = dt
         sens[k + 1, 1, 2 * k + 1] = dt
-    _cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, 0, n)
+    cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, stride, a_mat, bl, bu, g, n)
     return cost
 
 
@@ -105,8 +109,12 @@ def bicycle_qp(
     dt,
     n_sub,
     timing,
+    stride,
+    m_cbf,
     ulo,
     uhi,
+    xs,
+    sens,
     h_mat,
     f,
     a_mat,
@@ -121,13 +129,11 @@ def bicycle_qp(
     cross-track and heading error to the reference waypoints and speed error for k = 1..N,
     steer and acceleration for k = 0..N-1, and their rates with u(-1) = u_prev. Gauss-Newton
     Hessian H = 2 J' W J. Extra rows after the CBF rows: speed bounds v(k+1) in [vmin, vmax]
-    (widened to the speeds reachable from v(0)).
+    (widened to the speeds reachable from v(0)), from row ``m_cbf`` on. The states and their
+    sensitivities are left in ``xs`` and ``sens`` (columns of inputs after step k stay 0).
     """
     n_h = u.shape[0]
     n = 2 * n_h
-    m_cbf = n_h * peds.shape[0]
-    xs = np.empty((n_h + 1, 4))
-    sens = np.zeros((n_h + 1, 4, n))
     for d in range(4):
         xs[0, d] = x0[d]
     h = dt / n_sub
@@ -206,7 +212,7 @@ def bicycle_qp(
             bu[2 * k + d] = uhi[d] - u[k, d]
     pos = np.ascontiguousarray(xs[:, :2])
     psens = np.ascontiguousarray(sens[:, :2, :])
-    _cbf_fill(pos, psens, peds, vels, omg, r2, dt, timing, a_mat, bl, bu, g, 0, n)
+    cbf_fill(pos, psens, peds, vels, omg, r2, dt, timing, stride, a_mat, bl, bu, g, n)
     for k in range(n_h):
         row = m_cbf + k
         for i in range(n):

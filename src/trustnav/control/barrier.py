@@ -1,15 +1,35 @@
-"""Barrier `h_quad` and the trust-adaptive discrete CBF rows `cbf_imp` (plain numpy)."""
+"""Barriers: the paper's `h_quad` (defined once, here), the trust-adaptive discrete CBF rows
+`cbf_imp`, and the :class:`Barrier` protocol through which a user adds barriers of their own.
+
+A barrier is a set of m functions h_i(x, k) of the ego state x at horizon step k (so obstacles may
+move), safe where h_i >= 0. The problem turns each into the rows of `cbf_discrete`,
+
+    h_i(x(k+1), k+1) - (1 - gamma_i) h_i(x(k), k) >= 0,   k = 0..N_h-1,
+
+from the values and state Jacobians the barrier returns, vectorised over the horizon.
+"""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.trust.params import as_number
 
-__all__ = ["TIMINGS", "Timing", "barrier", "cbf_rows", "continuous_time_radius", "predict_pedestrians"]
+__all__ = [
+    "TIMINGS",
+    "Barrier",
+    "PedestrianBarrier",
+    "Timing",
+    "barrier",
+    "cbf_rows",
+    "continuous_time_radius",
+    "h_quad",
+    "predict_pedestrians",
+]
 
 #: Where the pedestrian is taken in the h(k+1) term of `cbf_imp`:
 #: "paper": at its predicted position x_p(t+k+1), as the paper writes `cbf_imp` (default);
@@ -18,10 +38,41 @@ Timing = Literal["paper", "authors_code"]
 TIMINGS: tuple[str, ...] = ("paper", "authors_code")
 
 
+@njit(cache=True)
+def h_quad(dx, dy, r2):  # compiled for scalars and arrays alike
+    """`h_quad`: phi = ||x_e - x_j||^2 - R^2 for the offset (dx, dy) = x_e - x_j and r2 = R^2.
+    Its gradient in x_e is 2 (dx, dy). The one definition every path uses: the compiled QP
+    kernels (scalars), :func:`barrier`, :func:`cbf_rows` and :class:`PedestrianBarrier` (arrays)."""
+    return dx * dx + dy * dy - r2
+
+
+@runtime_checkable
+class Barrier(Protocol):
+    """m barrier functions h_i(x, k) >= 0, each with its decay 1 - gamma_i of `cbf_discrete`.
+
+    ``values`` is vectorised over the horizon: ``states`` (K, n_x) are ego states in world
+    coordinates, ``steps`` (K,) their horizon step indices (time t + k dt, for obstacles that
+    move) and ``dt`` the step; it returns h (K, m) and dh/dx (K, m, n_x). A barrier is added to a
+    controller with ``MpcController(..., barriers=[...])``; nothing else in trustnav changes.
+    """
+
+    def size(self) -> int:
+        """Number m of barrier functions."""
+        ...
+
+    def decay(self) -> NDArray[np.float64]:
+        """1 - gamma_i for each function, shape (m,), in [0, 1]."""
+        ...
+
+    def values(
+        self, states: NDArray[np.float64], steps: NDArray[np.int64], dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
+
 def barrier(ego: ArrayLike, pedestrians: ArrayLike, radius: float) -> NDArray[np.float64]:
-    """`h_quad`: phi = ||x_e - x_j||^2 - R^2, broadcast over leading axes."""
+    """`h_quad` between ego position(s) and pedestrians, broadcast over leading axes."""
     d = np.asarray(ego, dtype=float)[..., None, :] - np.asarray(pedestrians, dtype=float)
-    return np.einsum("...i,...i->...", d, d) - radius * radius
+    return h_quad(d[..., 0], d[..., 1], float(radius) ** 2)
 
 
 def continuous_time_radius(radius: float, max_relative_speed: float, dt: float) -> float:
@@ -67,6 +118,46 @@ def cbf_rows(
     n = pos.shape[0] - 1
     q = predict_pedestrians(pedestrians, velocities, n, dt)
     q_next = q[1:] if timing == "paper" else q[:-1]
-    h_now = np.einsum("kji,kji->kj", pos[:-1, None] - q[:-1], pos[:-1, None] - q[:-1]) - radius**2
-    h_next = np.einsum("kji,kji->kj", pos[1:, None] - q_next, pos[1:, None] - q_next) - radius**2
+    r2 = float(radius) ** 2
+    d_now = pos[:-1, None] - q[:-1]
+    d_next = pos[1:, None] - q_next
+    h_now = h_quad(d_now[..., 0], d_now[..., 1], r2)
+    h_next = h_quad(d_next[..., 0], d_next[..., 1], r2)
     return h_next - np.asarray(one_minus_gamma, dtype=float)[None, :] * h_now
+
+
+class PedestrianBarrier:
+    """The paper's barrier: `h_quad` around each pedestrian, predicted at constant velocity
+    (`ped_predict`), with gamma_j from the pedestrian's trust by `weight` (``decay`` = 1 - gamma_j).
+
+    The controller sets its data at every step from the pedestrians it is given; the problem
+    fills its rows with a compiled kernel. ``values`` is the same barrier through the
+    :class:`Barrier` protocol (reference path, tests)."""
+
+    def __init__(
+        self,
+        positions: ArrayLike,
+        velocities: ArrayLike,
+        one_minus_gamma: ArrayLike,
+        radius: float,
+    ) -> None:
+        self.positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+        self.velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
+        self._decay = np.asarray(one_minus_gamma, dtype=float).reshape(-1)
+        self.r2 = float(radius) ** 2
+
+    def size(self) -> int:
+        return self.positions.shape[0]
+
+    def decay(self) -> NDArray[np.float64]:
+        return self._decay
+
+    def values(
+        self, states: NDArray[np.float64], steps: NDArray[np.int64], dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        q = self.positions[None] + (np.asarray(steps, dtype=float) * dt)[:, None, None] * self.velocities[None]
+        d = np.asarray(states, dtype=float)[:, None, :2] - q  # (K, m, 2)
+        h = h_quad(d[..., 0], d[..., 1], self.r2)
+        grad = np.zeros((*h.shape, states.shape[1]))
+        grad[..., :2] = 2.0 * d
+        return h, grad

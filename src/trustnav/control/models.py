@@ -1,27 +1,65 @@
-"""Ego dynamics models f_e (`f_e`) with their Jacobians.
+"""Ego dynamics models f_e (`f_e`) with their Jacobians, and the :class:`Dynamics` protocol.
 
-Each model gives a plain numpy ``step`` (used by simulators and by the SLSQP reference) and the
-input bounds (set U of `bounds`). The fast SQP path uses compiled kernels in
-:mod:`trustnav.control._kernels` that implement the same equations.
+A model gives ``step`` (one step of `f_e`), its Jacobians and the input bounds (set U of
+`bounds`); the problem rolls it out over the horizon with the sensitivities dx(k)/dU that the
+Jacobians give (:meth:`DynamicsModel.sensitivities`). Subclass :class:`DynamicsModel` to add a
+model (see ``examples/custom_dynamics.py``); the built-in models also have compiled kernels in
+:mod:`trustnav.control._kernels` that fuse the same equations with their cost.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["DynamicsModel", "KinematicBicycle", "SingleIntegrator"]
+from trustnav.control.barrier import h_quad
+
+if TYPE_CHECKING:
+    from trustnav.control.problem import MpcProblem
+
+__all__ = ["Dynamics", "DynamicsModel", "KinematicBicycle", "SingleIntegrator", "StateRow"]
 
 
-class DynamicsModel:
-    """Interface: state x (nx,), input u (nu,); position = x[:2]."""
+@runtime_checkable
+class Dynamics(Protocol):
+    """What a model must give: state size nx (position = x[:2]), input size nu, a name, one step
+    of `f_e`, its Jacobians (A, B) = (df/dx, df/du), and the input bounds. Subclass
+    :class:`DynamicsModel` to get the rest (rollout, sensitivities, fallback plans) for free."""
 
     nx: int
     nu: int
     name: str
+
+    def step(self, x: ArrayLike, u: ArrayLike, dt: float) -> NDArray[np.float64]: ...
+
+    def jacobians(self, x: ArrayLike, u: ArrayLike, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
+    def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
+
+#: Bounds lo[k] <= x(k+1)[index] <= hi[k] on one state component over the horizon (k = 0..N_h-1).
+StateRow = tuple[int, NDArray[np.float64], NDArray[np.float64]]
+
+
+class DynamicsModel:
+    """Base of the models: the :class:`Dynamics` protocol plus generic defaults a model may
+    override (state x (nx,), input u (nu,), position = x[:2])."""
+
+    nx: int
+    nu: int
+    name: str
+    #: names of the state and input components (costs check that a model fits them)
+    state_names: tuple[str, ...] = ()
+    input_names: tuple[str, ...] = ()
+    #: f_e is linear in (x, u) (the SQP takes full steps; no line search needed)
+    linear: bool = False
+    #: the SQP may run its feasibility (phase-1) search from varied starts when the recovery's
+    #: candidate starts fail (validated on the single integrator; off elsewhere)
+    feasibility_search: bool = False
 
     def step(self, x: ArrayLike, u: ArrayLike, dt: float) -> NDArray[np.float64]:
         raise NotImplementedError
@@ -35,8 +73,54 @@ class DynamicsModel:
 
     def braking_input(self, x: ArrayLike, dt: float | None = None) -> NDArray[np.float64]:
         """Fallback input: the strongest braking along the current heading that brings the ego to
-        rest within one step of ``dt`` (when given) and never reverses it."""
-        raise NotImplementedError
+        rest within one step of ``dt`` (when given) and never reverses it. Default: zero input
+        (within the bounds), right for models whose inputs are velocities."""
+        lo, hi = self.input_bounds()
+        return np.minimum(np.maximum(np.zeros(self.nu), lo), hi)
+
+    def braking_plan(self, x0: ArrayLike, n_h: int, dt: float) -> NDArray[np.float64]:
+        """Plan that brings the ego to rest as fast as the input bounds allow, then holds it."""
+        return np.tile(self.braking_input(x0, dt), (n_h, 1))
+
+    def sensitivities(
+        self, x0: ArrayLike, inputs: ArrayLike, dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """States x_0..x_N (N+1, nx) and their sensitivities dx_k/dU (N+1, nx, N nu) to the
+        stacked inputs U, from the one-step Jacobians: S_{k+1} = A_k S_k + B_k E_k."""
+        u = np.asarray(inputs, dtype=float).reshape(-1, self.nu)
+        n_h = u.shape[0]
+        xs = np.empty((n_h + 1, self.nx))
+        sens = np.zeros((n_h + 1, self.nx, n_h * self.nu))
+        xs[0] = np.asarray(x0, dtype=float)
+        for k in range(n_h):
+            a, b = self.jacobians(xs[k], u[k], dt)
+            cols = (k + 1) * self.nu  # inputs after u_k do not move x(k+1)
+            sens[k + 1, :, :cols] = a @ sens[k, :, :cols]
+            sens[k + 1, :, k * self.nu : cols] += b
+            xs[k + 1] = self.step(xs[k], u[k], dt)
+        return xs, sens
+
+    def decided_steps(self, dt: float) -> int:
+        """Leading horizon steps whose positions no input can change (their CBF rows are reported
+        but left out of the QP): 0 unless the position responds to inputs only with a delay."""
+        return 0
+
+    def state_rows(self, x0: NDArray[np.float64], n_h: int, dt: float) -> list[StateRow]:
+        """Bounds on state components over the horizon (e.g. speed), as linearised QP rows."""
+        return []
+
+    def candidate_starts(self, problem: MpcProblem) -> list[NDArray[np.float64]]:
+        """Starting plans for the feasibility recovery (each (N_h, nu)): braking, the cost's
+        initial guess, and constant inputs at the corners of the input box."""
+        lo, hi = self.input_bounds()
+        n_h = problem.n_h
+        corners = np.array(np.meshgrid(*np.stack([lo, hi], axis=1))).reshape(self.nu, -1).T
+        return [problem.braking_plan(), problem.initial_guess()] + [np.tile(c, (n_h, 1)) for c in corners]
+
+    def first_step_infeasible(self, problem: MpcProblem, tol: float) -> bool:
+        """True when the k = 0 rows admit no first input (a certificate that no plan is
+        hard-feasible); False when unknown (the default)."""
+        return False
 
     def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
         """States x_0..x_N for inputs u_0..u_{N-1} (N, nu)."""
@@ -63,6 +147,10 @@ class SingleIntegrator(DynamicsModel):
     nx = 2
     nu = 2
     name = "single_integrator"
+    state_names = ("x", "y")
+    input_names = ("vx", "vy")
+    linear = True
+    feasibility_search = True
 
     def __post_init__(self) -> None:
         if not self.u_max > 0 or math.isinf(self.u_max):
@@ -88,6 +176,102 @@ class SingleIntegrator(DynamicsModel):
     def braking_input(self, x: ArrayLike, dt: float | None = None) -> NDArray[np.float64]:
         return np.zeros(2)
 
+    def sensitivities(
+        self, x0: ArrayLike, inputs: ArrayLike, dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        u = np.asarray(inputs, dtype=float).reshape(-1, 2)
+        n_h = u.shape[0]
+        sens = np.zeros((n_h + 1, 2, 2 * n_h))
+        for k in range(n_h):
+            sens[k + 1 :, 0, 2 * k] = dt
+            sens[k + 1 :, 1, 2 * k + 1] = dt
+        return self.rollout(x0, u, dt), sens
+
+    def candidate_starts(self, problem: MpcProblem) -> list[NDArray[np.float64]]:
+        """Constant-velocity plans: stop, the cost's initial guess, and for each of the three most
+        binding obstacles backing away, passing on either side, and both diagonals, at the
+        reference speed, half of it, a quarter of the input bound and the bound, and a dash at the
+        bound that stops after a third of the horizon (the CBF rows are non-convex: an obstacle can
+        be passed on either side, or backed away from)."""
+        p = problem
+        guess = p.initial_guess()
+        starts = [np.zeros((p.n_h, 2)), guess]
+        ref = float(np.hypot(*guess[0]))
+        top = float(p.uhi.min())
+        speeds = [s for s in (ref, 0.5 * ref) if s > 1e-6] + [0.25 * top, top]
+        dash = np.zeros((p.n_h, 1))
+        dash[: max(1, p.n_h // 3)] = 1.0  # full speed for the first third of the horizon, then stop
+        for j in p.binding_obstacles(3):
+            away = p.escape_direction(j)
+            norm = float(np.hypot(*away))
+            e = away / norm if norm > 1e-9 else np.array([1.0, 0.0])  # on top of the ego: any way out
+            t = np.array([-e[1], e[0]])
+            for d in (e, t, -t, (e + t) / np.sqrt(2), (e - t) / np.sqrt(2)):
+                for s in speeds:
+                    starts.append(np.clip(np.tile(s * d, (p.n_h, 1)), p.ulo, p.uhi))
+                starts.append(np.clip(dash * (top * d), p.ulo, p.uhi))
+        return starts
+
+    def first_step_infeasible(self, problem: MpcProblem, tol: float, max_disks: int = 32) -> bool:
+        """True when no first input u_0 meets every pedestrian's k = 0 row to within ``tol``: then
+        no plan is hard-feasible (a certificate, so a solver can skip searching for one; other
+        barriers only add rows).
+
+        The k = 0 rows depend on u_0 alone: the next position p = u_0 dt must lie in the input box
+        times dt and outside the open disk |p - q_j(1)|^2 < R^2 + (1 - gamma_j) h_j(0) - tol of
+        each pedestrian. A generic linear function attains its minimum over that compact set (if
+        nonempty) at a vertex: a box corner, a crossing of a circle with a box edge, or of two
+        circles; so the set is empty exactly when no such point is in it. False (no certificate)
+        with more than ``max_disks`` disks reaching the box."""
+        p = problem
+        if p.n_p == 0:
+            return False
+        c = p.config
+        r2 = c.safety_radius**2
+        lo, hi = c.dt * p.ulo, c.dt * p.uhi  # the box of p (ego at the origin)
+        q_next = p.peds + c.dt * p.vels if p.timing_code == 0 else p.peds
+        h0 = h_quad(p.peds[:, 0], p.peds[:, 1], r2)
+        rho = r2 + p.one_minus_gamma * h0 - tol  # row_j >= -tol  <=>  |p - q_j(1)|^2 >= rho_j
+        gap = np.maximum(lo - q_next, 0.0) + np.maximum(q_next - hi, 0.0)  # centre to the box
+        near = (rho > 0.0) & (np.einsum("ij,ij->i", gap, gap) < rho)
+        if not near.any():
+            return False
+        if int(near.sum()) > max_disks:
+            return False
+        cen, rad2 = q_next[near], rho[near]
+        pts = [np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])]
+        for axis in (0, 1):  # circles crossing the box edges x = lo/hi (axis 0), y = lo/hi (axis 1)
+            other = 1 - axis
+            for edge in (lo[axis], hi[axis]):
+                s2 = rad2 - (edge - cen[:, axis]) ** 2
+                ok = s2 >= 0.0
+                s = np.sqrt(s2[ok])
+                for sign in (-1.0, 1.0):
+                    e = np.empty((s.size, 2))
+                    e[:, axis] = edge
+                    e[:, other] = cen[ok, other] + sign * s
+                    pts.append(e)
+        i, j = np.triu_indices(cen.shape[0], k=1)  # circle-circle crossings
+        if i.size:
+            d = cen[j] - cen[i]
+            dd = np.einsum("ij,ij->i", d, d)
+            a = (rad2[i] - rad2[j] + dd) / (2.0 * np.sqrt(np.maximum(dd, 1e-300)))
+            h2 = rad2[i] - a * a
+            ok = (dd > 0.0) & (h2 >= 0.0)
+            dist = np.sqrt(dd[ok])[:, None]
+            u = d[ok] / dist
+            base = cen[i[ok]] + a[ok, None] * u
+            perp = np.stack([-u[:, 1], u[:, 0]], axis=1) * np.sqrt(h2[ok])[:, None]
+            pts += [base + perp, base - perp]
+        pt = np.concatenate(pts)
+        eps = 1e-12
+        pt = pt[np.all((pt >= lo - eps) & (pt <= hi + eps), axis=1)]
+        if pt.shape[0] == 0:
+            return True
+        diff = pt[:, None, :] - cen[None, :, :]
+        margin = (np.einsum("kji,kji->kj", diff, diff) - rad2[None, :]).min(axis=1)
+        return not bool((margin >= -1e-9).any())
+
 
 @dataclass(frozen=True)
 class KinematicBicycle(DynamicsModel):
@@ -111,6 +295,8 @@ class KinematicBicycle(DynamicsModel):
     nx = 4
     nu = 2
     name = "bicycle"
+    state_names = ("x", "y", "yaw", "v")
+    input_names = ("steer", "accel")
 
     def __post_init__(self) -> None:
         if not self.wheelbase > 0:
@@ -175,3 +361,45 @@ class KinematicBicycle(DynamicsModel):
         else:
             a = min(self.accel_max, max(self.accel_min, -v / dt))  # to rest, not past it
         return np.array([0.0, a])
+
+    def decided_steps(self, dt: float) -> int:
+        """With one Euler step per dt the position at k = 1 depends on the state only; with
+        sub-steps u_0 moves it (a little), so those rows stay in the QP."""
+        return 1 if self.substeps(dt) == 1 else 0
+
+    def speed_bounds(self, v0: float, n_h: int, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Bounds on v(1..N_h): [speed_min, speed_max], widened to the speeds the acceleration
+        bounds can reach from v(0), so that the speed rows are always feasible (a car rolling
+        back or over speed is brought back without an infeasible QP)."""
+        k = np.arange(1, n_h + 1) * dt
+        return np.minimum(self.speed_min, v0 + k * self.accel_max), np.maximum(self.speed_max, v0 + k * self.accel_min)
+
+    def state_rows(self, x0: NDArray[np.float64], n_h: int, dt: float) -> list[StateRow]:
+        lo, hi = self.speed_bounds(float(x0[3]), n_h, dt)
+        return [(3, lo, hi)]
+
+    def plan(self, x0: ArrayLike, n_h: int, dt: float, steer: float, accel: str) -> NDArray[np.float64]:
+        """Constant steer with acceleration 'hold' (0), 'brake' (to rest at the strongest
+        deceleration, never reversing) or 'ease' (half of it)."""
+        u = np.zeros((n_h, 2))
+        u[:, 0] = steer
+        v = float(np.asarray(x0, dtype=float)[3])
+        for k in range(n_h):
+            if accel == "hold":
+                a = 0.0
+            else:
+                a_min = self.accel_min if accel == "brake" else 0.5 * self.accel_min
+                a = min(self.accel_max, max(a_min, -v / dt))  # reach v = 0 exactly, never below
+            u[k, 1] = a
+            v += a * dt
+        return u
+
+    def braking_plan(self, x0: ArrayLike, n_h: int, dt: float) -> NDArray[np.float64]:
+        return self.plan(x0, n_h, dt, 0.0, "brake")
+
+    def candidate_starts(self, problem: MpcProblem) -> list[NDArray[np.float64]]:
+        """Constant-steer plans (straight, half and full lock either way) that hold speed,
+        ease off or brake to rest."""
+        sm, x0, n_h, dt = self.steer_max, problem.x0, problem.n_h, problem.config.dt
+        steers = (0.0, 0.5 * sm, -0.5 * sm, sm, -sm)
+        return [self.plan(x0, n_h, dt, st, acc) for acc in ("brake", "ease", "hold") for st in steers]

@@ -10,13 +10,16 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control.models import DynamicsModel
-from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians, make_problem
+from trustnav.control.barrier import Barrier
+from trustnav.control.costs import Cost
+from trustnav.control.models import Dynamics
+from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians
 from trustnav.control.solvers import (
     FEAS_TOL,
     AuthorsSlsqpSolver,
@@ -60,18 +63,24 @@ class MpcController:
     Every step returns a checked plan: when the solver does not end OPTIMAL, its plan, the
     shifted previous plan and braking to rest are checked against the exact CBF rows and the
     best by (first-row violation, total violation over the horizon, cost) is applied (:func:`rank_key`).
+
+    The problem is assembled from ``model`` (any :class:`~trustnav.control.models.Dynamics`),
+    ``cost`` (any :class:`~trustnav.control.costs.Cost`), the pedestrians given at every step (the
+    paper's barrier, gamma from trust) and ``barriers``, any number of user barriers
+    (:class:`~trustnav.control.barrier.Barrier`: keep-out zones, road edges).
     """
 
     def __init__(
         self,
-        model: DynamicsModel,
-        cost: object,
+        model: Dynamics,
+        cost: Cost,
         config: MpcConfig | None = None,
         solver: SqpSolver | SlsqpSolver | AuthorsSlsqpSolver | None = None,
+        barriers: Sequence[Barrier] = (),
     ) -> None:
-        self.model = model
         self.config = config or MpcConfig()
-        self.problem: MpcProblem = make_problem(model, cost, self.config)
+        self.problem: MpcProblem = MpcProblem(model, cost, self.config, barriers)
+        self.model = self.problem.model
         self.solver = solver or SqpSolver()
         self._warm_up()
         self.reset()

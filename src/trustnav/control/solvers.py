@@ -9,7 +9,7 @@ from __future__ import annotations
 import enum
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import daqp
 import numpy as np
@@ -127,7 +127,7 @@ class SqpSolver:
 
         def hopeless(self, p: MpcProblem) -> bool:
             """True when the problem certifies that no plan is hard-feasible (its k = 0 rows admit no
-            first input; see ``SingleIntegratorProblem.first_step_infeasible``); asked once per solve."""
+            first input; see ``SingleIntegrator.first_step_infeasible``); asked once per solve."""
             if self._hopeless is None:
                 self._hopeless = bool(p.first_step_infeasible(FEAS_TOL))
             return self._hopeless
@@ -177,10 +177,11 @@ class SqpSolver:
         self.phase1_qps = phase1_qps
         self.phase1_progress = phase1_progress
         self.phase1_seed = phase1_seed
-        # one DAQP workspace per (problem class, QP size, mode): problems of different models
-        # never share a workspace, so a cached Hessian cannot be reused for another model
-        self._models: dict[tuple[str, int, int, bool | str], daqp.Model] = {}
-        self._qp_seconds: dict[tuple[str, int, int, bool | str], float] = {}  # last solve time per size
+        # one DAQP workspace per (problem kind, QP size, mode): problems of different models or
+        # costs never share a workspace; a constant Hessian is kept only for the problem that set it
+        self._models: dict[tuple, daqp.Model] = {}
+        self._owners: dict[tuple, MpcProblem] = {}
+        self._qp_seconds: dict[tuple, float] = {}  # last solve time per size
 
     # ---- QPs ----
     def _slack_columns(self, p: MpcProblem, row_pedestrians: int | None = None) -> tuple[NDArray[np.int64], int]:
@@ -236,7 +237,7 @@ class SqpSolver:
             a = np.zeros((1, h.shape[0]))
             bl = np.append(bl, -1e20)
             bu = np.append(bu, 1e20)
-        key = (type(p).__name__, h.shape[0], a.shape[0], "phase1" if phase1 else relaxed)
+        key = (p.kind, h.shape[0], a.shape[0], "phase1" if phase1 else relaxed)
         if until is not None and t_start + self._qp_seconds.get(key, 0.0) > until:
             return None, DEADLINE
         model = self._models.get(key)
@@ -249,10 +250,12 @@ class SqpSolver:
             if flag < 0:
                 return None, flag
             self._models[key] = model
+            self._owners[key] = p
         else:
-            # H of a linear model's problem is constant (per problem class): leave it in place;
-            # so is the feasibility QP's (per size)
-            if (p.nonlinear or relaxed) and not phase1:
+            # H of a linear model with a constant-Hessian cost is constant: leave it in place
+            # unless another problem set it; so is the feasibility QP's (per size)
+            if ((p.nonlinear or relaxed) and not phase1) or self._owners.get(key) is not p:
+                self._owners[key] = p
                 flag = model.update(H=h, f=f, A=a, bupper=bu, blower=bl)
             else:
                 flag = model.update(f=f, A=a, bupper=bu, blower=bl)
@@ -422,129 +425,167 @@ class SqpSolver:
             u, cost, chk = trial, c1, c_chk  # the buffers hold the data at u
         return None
 
+    @dataclass
+    class _State:
+        """Per-solve state of :meth:`solve`."""
+
+        p: MpcProblem
+        u: NDArray[np.float64]
+        until: float | None  # perf_counter time of the deadline
+        until_recovery: float | None  # the recovery stops here (the rest is for relaxing)
+        memo: SqpSolver._Recovery
+        best: _Best = field(default_factory=_Best)
+        seen: list[NDArray[np.float64]] = field(default_factory=list)  # iterates not yet checked
+        slack: tuple[NDArray[np.int64], int] | None = None  # slack columns while relaxed
+        step: NDArray[np.float64] | None = None
+        cost: float = math.nan
+        fresh: bool = False  # the problem's buffers already hold the data at u (accepted trial)
+        it: int = 0
+        restarts: int = 0
+        converged: bool = False
+        recovered: bool = False
+        deadline_hit: bool = False
+        second_chance: bool = False
+        message: str = ""
+
     def solve(self, problem: MpcProblem, u0: NDArray[np.float64], deadline: float | None = None) -> SolveResult:
+        """SQP iterations from ``u0`` (see the class): a QP at each iterate (recovering or relaxing
+        when it is infeasible), a step, until the step is below ``tol``; then the final plan is
+        checked, and beaten or restored where a better checked plan exists."""
         t0 = time.perf_counter()
-
-        until = None if deadline is None else t0 + deadline
-        until_recovery = None if deadline is None else t0 + 0.8 * deadline  # the rest for relaxing
-
         p = problem
-        u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
-        best = _Best()
-        seen: list[NDArray[np.float64]] = []  # iterates not yet checked
-        slack: tuple[NDArray[np.int64], int] | None = None
-        converged = recovered = deadline_hit = second_chance = False
-        restarts = 0
         # the feasibility SQP is part of the recovery (off with max_restarts = 0), for problems that
         # ask for it (validated on the single integrator)
         phase1 = self.max_restarts > 0 and p.feasibility_search
-        memo = self._Recovery(self.phase1_qps if phase1 else 0)
-        message = ""
-        it = 0
-        cost = math.nan
-        fresh = False  # True when the problem's buffers already hold the data at u (accepted trial)
-        step = None
-        for it in range(1, self.max_iter + 1):
-            if until is not None and time.perf_counter() > until:
-                deadline_hit = True
+        s = self._State(
+            p=p,
+            u=np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi),
+            until=None if deadline is None else t0 + deadline,
+            until_recovery=None if deadline is None else t0 + 0.8 * deadline,
+            memo=self._Recovery(self.phase1_qps if phase1 else 0),
+        )
+        for s.it in range(1, self.max_iter + 1):
+            if s.until is not None and time.perf_counter() > s.until:
+                s.deadline_hit = True
                 break
-            if not fresh:
-                cost = p.build(u)
-            fresh = False
-            seen.append(u)  # ranked only when needed (recovery, relaxation, an unconverged end)
-            step, flag = self._qp(p, slack, until if it > 1 else None)  # the first QP always runs
-            if step is None and flag != DEADLINE and slack is None and p.m_cbf > 0:
-                self._settle(p, best, seen)
-                if self.max_restarts > 0 and (
-                    restarts < self.max_restarts or (memo.phase1_qps > 0 and not memo.hopeless(p))
-                ):
-                    start, step, c_start, tried = self._recover(
-                        p, u, best, self.max_restarts - restarts, until_recovery, memo
-                    )
-                    restarts += tried
-                    if step is not None:
-                        u, cost, recovered = start, c_start, True
-                if step is None:  # no hard-feasible start found: relax from the best point seen
-                    if best.u is not None:
-                        u = best.u.copy()
-                    cost = p.build(u)
-                    slack = self._slack_columns(p)
-                    step, flag = self._qp(p, slack, until)
-            if step is None and flag == DEADLINE:
-                deadline_hit = True
+            flag = self._iterate_qp(s)
+            if s.step is None:
+                if flag == DEADLINE:
+                    s.deadline_hit = True
+                else:
+                    s.message = f"DAQP exit flag {flag} at SQP iteration {s.it}"
                 break
-            if step is None:
-                message = f"DAQP exit flag {flag} at SQP iteration {it}"
-                break
-            d = step.reshape(u.shape)
-            alpha = 1.0
-            if p.nonlinear or it > self.full_step_iterations:
-                # L1-merit backtracking: always for nonlinear models; for the linear model once
-                # full steps have not converged (the non-convex rows can make them cycle)
-                viol0 = float(np.maximum(0.0, -p.g).sum())
-                mu = 10.0 * self.slack_penalty if slack is not None else 1e4
-                merit0 = cost + mu * viol0
-                for _ in range(8):
-                    trial = np.clip(u + alpha * d, p.ulo, p.uhi)
-                    c1 = p.build(trial)
-                    if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
-                        break
-                    alpha *= 0.5
-                u, cost, fresh = trial, c1, True  # the last build was at this trial: reuse it
-            else:
-                # the QP keeps u + d within the input bounds (to DAQP's tolerance)
-                u = u + alpha * d
-            if alpha * float(np.abs(d).max()) < self.tol:
-                if slack is not None and not second_chance and float(p.g[p.n_decided :].min()) < -FEAS_TOL:
+            if self._take_step(s) < self.tol:
+                if s.slack is not None and not s.second_chance and float(p.g[p.n_decided :].min()) < -FEAS_TOL:
                     # the relaxed solve converged near the feasible set: once, try the hard
                     # rows again from there before accepting the relaxation
-                    second_chance, slack = True, None
+                    s.second_chance, s.slack = True, None
                     continue
-                converged = True
+                s.converged = True
                 break
-        # the final iterate, checked exactly
-        final = p.evaluate(u) if math.isfinite(float(u.sum())) else None
-        done = converged and final is not None and (final.worst <= FEAS_TOL or slack is not None)
+        return self._result(s, deadline, t0)
+
+    def _iterate_qp(self, s: SqpSolver._State):
+        """The QP at the current iterate; when the hard QP is infeasible, the feasibility recovery
+        (a hard-feasible start), else the relaxation from the best point seen. Sets ``s.step``
+        (None when no QP could be solved) and returns the QP's flag."""
+        p = s.p
+        if not s.fresh:
+            s.cost = p.build(s.u)
+        s.fresh = False
+        s.seen.append(s.u)  # ranked only when needed (recovery, relaxation, an unconverged end)
+        s.step, flag = self._qp(p, s.slack, s.until if s.it > 1 else None)  # the first QP always runs
+        if s.step is not None or flag == DEADLINE or s.slack is not None or p.m_cbf == 0:
+            return flag
+        self._settle(p, s.best, s.seen)
+        memo = s.memo
+        if self.max_restarts > 0 and (s.restarts < self.max_restarts or (memo.phase1_qps > 0 and not memo.hopeless(p))):
+            start, s.step, c_start, tried = self._recover(
+                p, s.u, s.best, self.max_restarts - s.restarts, s.until_recovery, memo
+            )
+            s.restarts += tried
+            if s.step is not None:
+                s.u, s.cost, s.recovered = start, c_start, True
+        if s.step is None:  # no hard-feasible start found: relax from the best point seen
+            if s.best.u is not None:
+                s.u = s.best.u.copy()
+            s.cost = p.build(s.u)
+            s.slack = self._slack_columns(p)
+            s.step, flag = self._qp(p, s.slack, s.until)
+        return flag
+
+    def _take_step(self, s: SqpSolver._State) -> float:
+        """Move the iterate along the QP's step: a full step for linear problems, a backtracking
+        line search on the L1 merit otherwise (and once full steps have not converged: the
+        non-convex rows can make them cycle). Returns the length of the step taken (max norm)."""
+        p = s.p
+        d = s.step.reshape(s.u.shape)
+        alpha = 1.0
+        if p.nonlinear or s.it > self.full_step_iterations:
+            viol0 = float(np.maximum(0.0, -p.g).sum())
+            mu = 10.0 * self.slack_penalty if s.slack is not None else 1e4
+            merit0 = s.cost + mu * viol0
+            for _ in range(8):
+                trial = np.clip(s.u + alpha * d, p.ulo, p.uhi)
+                c1 = p.build(trial)
+                if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
+                    break
+                alpha *= 0.5
+            s.u, s.cost, s.fresh = trial, c1, True  # the last build was at this trial: reuse it
+        else:
+            s.u = s.u + alpha * d  # the QP keeps u + d within the input bounds (to DAQP's tolerance)
+        return alpha * float(np.abs(d).max())
+
+    def _final_plan(self, s: SqpSolver._State) -> tuple[bool, bool, PlanCheck | None]:
+        """(done, relaxation_beaten, final check): ``done`` when the converged iterate itself is
+        returned. Otherwise the best checked plan wins, after every candidate start and a
+        restoration (the feasibility SQP from the best plan) have had their chance."""
+        p, best, memo = s.p, s.best, s.memo
+        final = p.evaluate(s.u) if math.isfinite(float(s.u.sum())) else None
+        done = s.converged and final is not None and (final.worst <= FEAS_TOL or s.slack is not None)
         relaxation_beaten = False
-        if done and slack is not None and final.worst > FEAS_TOL:
+        if done and s.slack is not None and final.worst > FEAS_TOL:
             # the relaxation converged to a violating plan, but a hard-feasible plan may have been
             # seen on the way (a recovered start, a feasibility SQP iterate): it beats the relaxation
-            self._settle(p, best, seen)
+            self._settle(p, best, s.seen)
             relaxation_beaten = best.check.worst <= FEAS_TOL
             done = not relaxation_beaten
         if not done:
             if final is not None:
-                best.offer(u, final)
-            self._settle(p, best, seen)
+                best.offer(s.u, final)
+            self._settle(p, best, s.seen)
             if best.check.worst > FEAS_TOL and p.m_cbf:  # an exactly feasible candidate beats it
-                p.build(u)
+                p.build(s.u)
                 for c in p.candidate_starts():
                     c = np.minimum(np.maximum(c, p.ulo), p.uhi)
                     best.offer(c, p.evaluate(c))
                 if best.check.worst > FEAS_TOL and best.u is not None and memo.phase1_qps > 0 and not memo.hopeless(p):
                     # restoration: the feasibility SQP from the best plan (its exact violation is
                     # often second order once its linearisation holds)
-                    self._feasibility_sqp(p, best.u, best, until, memo, to_hard_qp=False)
-        restarts += memo.phase1_starts  # reported: all starts tried
+                    self._feasibility_sqp(p, best.u, best, s.until, memo, to_hard_qp=False)
+        return done, relaxation_beaten, final
+
+    def _result(self, s: SqpSolver._State, deadline: float | None, t0: float) -> SolveResult:
+        """The returned plan (see :meth:`_final_plan`) with its exact check and its status."""
+        done, relaxation_beaten, final = self._final_plan(s)
+        restarts = s.restarts + s.memo.phase1_starts  # reported: all starts tried
         elapsed = time.perf_counter() - t0
-        if best.u is None and not done:  # nothing finite was ever evaluated
-            return SolveResult(u, SolveStatus.FAILED, it, math.nan, math.nan, True, message or "non-finite iterate",
-                               elapsed, math.nan, recovered, restarts, deadline_hit)  # fmt: skip
-        if done:
-            out_u, out = u, final  # the converged iterate itself
-        else:
-            out_u, out = best.u, best.check
-        out_fv, out_hv, out_cost = out.first_row, out.worst, out.cost
+        message = s.message
+        if s.best.u is None and not done:  # nothing finite was ever evaluated
+            return SolveResult(s.u, SolveStatus.FAILED, s.it, math.nan, math.nan, True, message or "non-finite iterate",
+                               elapsed, math.nan, s.recovered, restarts, s.deadline_hit)  # fmt: skip
+        out_u, out = (s.u, final) if done else (s.best.u, s.best.check)  # done: the converged iterate
+        out_hv = out.worst
         slack_used = out_hv > FEAS_TOL
-        if step is None and message.startswith("DAQP"):
+        if s.step is None and message.startswith("DAQP"):
             status = SolveStatus.FAILED
         elif relaxation_beaten:
             status = SolveStatus.MAX_ITER
             message = (f"the relaxed SQP converged to a plan violating CBF rows by {final.worst:.3g}; "
                        "the best hard-feasible plan seen returned")  # fmt: skip
-        elif not converged:
+        elif not s.converged:
             status = SolveStatus.MAX_ITER
-            why = f"deadline of {deadline * 1e3:.1f} ms" if deadline_hit else f"{self.max_iter} SQP iterations"
+            why = f"deadline of {deadline * 1e3:.1f} ms" if s.deadline_hit else f"{self.max_iter} SQP iterations"
             message = f"no convergence within {why}; best checked plan returned (violation {out_hv:.3g})"
         elif slack_used:
             status = SolveStatus.RELAXED
@@ -552,10 +593,10 @@ class SqpSolver:
                        f"CBF rows relaxed by up to {out_hv:.3g}")  # fmt: skip
         else:
             status = SolveStatus.OPTIMAL
-            if recovered:
+            if s.recovered:
                 message = f"hard-feasible plan recovered after an infeasible linearisation ({restarts} starts tried)"
-        return SolveResult(out_u.copy(), status, it, out_cost, out_hv, slack_used, message, elapsed, out_fv,
-                           recovered, restarts, deadline_hit)  # fmt: skip
+        return SolveResult(out_u.copy(), status, s.it, out.cost, out_hv, slack_used, message, elapsed, out.first_row,
+                           s.recovered, restarts, s.deadline_hit)  # fmt: skip
 
 
 def _slsqp_result(p: MpcProblem, res, t0: float) -> SolveResult:
