@@ -62,8 +62,10 @@ class Cost(Protocol):
         """Cost alone (plain numpy, for the SLSQP reference)."""
         ...
 
-    def initial_guess(self, stage: Any, model: Dynamics, n_h: int) -> NDArray[np.float64]:
-        """First plan of a solve without a previous one."""
+    def initial_guess(
+        self, stage: Any, n_h: int, lower: NDArray[np.float64], upper: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """First plan (N_h, nu) of a solve without a previous one, within the input bounds."""
         ...
 
 
@@ -76,11 +78,6 @@ def finite_pair(value: object, name: str) -> tuple[float, float]:
     if len(pair) != 2 or not all(math.isfinite(v) for v in pair):
         raise ValueError(f"{name} must be 2 finite coordinates, got {value!r}")
     return pair  # type: ignore[return-value]
-
-
-def _bounds(model: Dynamics) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    lo, hi = model.input_bounds()
-    return np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
 
 
 def _gauss_newton(r: NDArray[np.float64], jac: NDArray[np.float64], w: NDArray[np.float64], hessian, gradient) -> float:
@@ -127,9 +124,8 @@ class VelocityTrackingCost:
         e = u - stage
         return float(np.sum(e * e))
 
-    def initial_guess(self, stage, model, n_h):
-        lo, hi = _bounds(model)
-        return np.clip(stage, lo, hi)
+    def initial_guess(self, stage, n_h, lower, upper):
+        return np.clip(stage, lower, upper)
 
 
 @dataclass(frozen=True)
@@ -230,8 +226,8 @@ class LaneTrackingCost:
         r, w, _ = self._residuals(stage, xs, u, u_prev)
         return float(np.sum(w * r * r))
 
-    def initial_guess(self, stage, model, n_h):
-        return np.zeros((n_h, model.nu))
+    def initial_guess(self, stage, n_h, lower, upper):
+        return np.zeros((n_h, lower.size))
 
 
 @dataclass(frozen=True)
@@ -299,6 +295,5 @@ class PositionTrackingCost:
         r, w = self._residuals(stage, xs, u, u_prev)
         return float(np.sum(w * r * r))
 
-    def initial_guess(self, stage, model, n_h):
-        lo, hi = _bounds(model)
-        return np.tile(np.minimum(np.maximum(0.0, lo), hi), (n_h, 1))
+    def initial_guess(self, stage, n_h, lower, upper):
+        return np.tile(np.minimum(np.maximum(0.0, lower), upper), (n_h, 1))

@@ -361,7 +361,7 @@ class MpcProblem:
         self.bu[self.n + rows] = kern.INF
 
     def initial_guess(self) -> NDArray[np.float64]:
-        return self.cost.initial_guess(self.stage, self.model, self.n_h)
+        return self.cost.initial_guess(self.stage, self.n_h, self.ulo, self.uhi)
 
     # ---- exact checks ----
     def evaluate(self, u: NDArray[np.float64]) -> PlanCheck:

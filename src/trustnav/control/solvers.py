@@ -425,7 +425,7 @@ class SqpSolver:
             u, cost, chk = trial, c1, c_chk  # the buffers hold the data at u
         return None
 
-    @dataclass
+    @dataclass(slots=True)
     class _State:
         """Per-solve state of :meth:`solve`."""
 
