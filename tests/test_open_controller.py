@@ -250,3 +250,21 @@ def test_custom_dynamics_example_keeps_r_and_trust_widens_the_pass():
     assert out["distracted_min_distance_m"] > out["attentive_min_distance_m"] + 0.3
     assert out["relaxed_steps"] == 0
     assert out["time_to_goal_s"] < 25.0
+
+
+@pytest.mark.parametrize("solver_name", ["sqp", "slsqp", "slsqp-authors"])
+def test_every_solver_respects_a_user_barrier(solver_name):
+    from trustnav.control import make_solver
+
+    disk = Disk((20.3, 8.0), 2.0)  # a little off the straight path (dead ahead is a saddle for SLSQP)
+    prob = MpcProblem(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), MpcConfig(horizon=7), [disk])
+    prob.set_stage([20.0, 5.0], [[30.0, 30.0]], None, [0.5])
+    res = make_solver(solver_name).solve(prob, prob.initial_guess(), deadline=10.0)
+    rows = prob.constraints_np(res.inputs)
+    assert res.status.value == "optimal", res.message
+    assert rows[1 :: prob.n_obs].min() >= -1e-6  # the disk's rows hold
+    assert res.cbf_violation == pytest.approx(max(0.0, -rows[: prob.m_cbf].min()), abs=1e-9)
+    free = MpcProblem(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), MpcConfig(horizon=7))
+    free.set_stage([20.0, 5.0], [[30.0, 30.0]], None, [0.5])
+    assert free.constraints_np(free.initial_guess()).min() >= 0  # without the disk, the straight plan is fine
+    assert prob.constraints_np(prob.initial_guess())[1 :: prob.n_obs].min() < 0  # with it, it is not

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
+from trustnav.control.barrier import h_quad
 from trustnav.control.problem import MpcProblem, PlanCheck
 
 __all__ = [
@@ -684,8 +685,8 @@ class AuthorsSlsqpSolver:
 
         def row(u: NDArray[np.float64]) -> float:
             xs = p.states_np(u)
-            h_now = float(np.sum((xs[k, :2] - q_now) ** 2)) - r2
-            h_next = float(np.sum((xs[k + 1, :2] - q_next) ** 2)) - r2
+            h_now = float(h_quad(xs[k, 0] - q_now[0], xs[k, 1] - q_now[1], r2))
+            h_next = float(h_quad(xs[k + 1, 0] - q_next[0], xs[k + 1, 1] - q_next[1], r2))
             return h_next - omg * h_now
 
         return row
@@ -696,8 +697,10 @@ class AuthorsSlsqpSolver:
         p = problem
         steps = range(p.decided_steps, p.n_h)
         cons = [{"type": "ineq", "fun": self._row(p, k, j)} for k in steps for j in range(p.n_p)]
-        extra = range(p.constraints_np(np.zeros(p.n)).size - p.m_cbf)  # model rows (speed bounds)
-        cons += [{"type": "ineq", "fun": lambda u, i=i: p.constraints_np(u)[p.m_cbf + i]} for i in extra]
+        # user barriers' rows (k * N_o + j, j >= N_p) and model rows (speed bounds), one closure each
+        user = [k * p.n_obs + j for k in steps for j in range(p.n_p, p.n_obs)]
+        extra = [p.m_cbf + i for i in range(p.constraints_np(np.zeros(p.n)).size - p.m_cbf)]
+        cons += [{"type": "ineq", "fun": lambda u, r=r: p.constraints_np(u)[r]} for r in user + extra]
         prev = self._previous
         if self.warm_start == "previous" and prev is not None and prev.size == p.n and np.isfinite(prev).all():
             x0 = prev
