@@ -546,8 +546,16 @@ def test_options_are_validated():
 # ---------------------------------------------------------------------------------------- command
 def _args(port: int, out, **kw) -> argparse.Namespace:
     base = dict(case="case-1", sensing="keypoints", attentive=None, seed=0, rate=None, control_rate=None,
-                out=str(out), no_video=True, host="127.0.0.1", port=port, timeout=2.0, world="carla")  # fmt: skip
+                out=str(out), no_video=True, host="127.0.0.1", port=port, timeout=2.0, world="carla",
+                overwrite=False)  # fmt: skip
     return argparse.Namespace(**{**base, **kw})
+
+
+def run_carla_drive(args: argparse.Namespace) -> int:
+    """``trustnav drive ... --world carla`` (the CLI's one drive command, output checks included)."""
+    from trustnav.cli import _drive
+
+    return _drive(args)
 
 
 def test_command_without_the_carla_package(monkeypatch, capsys, tmp_path):
@@ -570,8 +578,6 @@ def test_command_without_a_server(monkeypatch, capsys, tmp_path, server):
 
 
 def test_command_drives_case_1_on_the_fake_server(monkeypatch, capsys, tmp_path, server, listening_port):
-    from trustnav.carla_bridge.command import run_carla_drive
-
     monkeypatch.setitem(sys.modules, "carla", fake_carla(server))
     assert run_carla_drive(_args(listening_port, tmp_path)) == 0
     _assert_clean(server)
@@ -591,8 +597,6 @@ def test_command_drives_case_1_on_the_fake_server(monkeypatch, capsys, tmp_path,
                          ids=["ctrl-c", "server-error"])  # fmt: skip
 def test_command_cleans_up_when_a_run_is_cut_short(monkeypatch, capsys, tmp_path, server, listening_port, error,
                                                   code):  # fmt: skip
-    from trustnav.carla_bridge.command import run_carla_drive
-
     server.fail_tick, server.fail_with = 30, error
     monkeypatch.setitem(sys.modules, "carla", fake_carla(server))
     assert run_carla_drive(_args(listening_port, tmp_path, case="case-2", attentive=True)) == code

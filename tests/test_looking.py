@@ -6,15 +6,11 @@ import io
 import math
 import pickle
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from trustnav.perception.looking import LookingModel, load_torch_state_dict, normalise_keypoints, resolve_weights
-
-WEIGHTS = Path(__file__).resolve().parents[1].parent / "shared" / "models" / "looking" / "LookingModel_LOOK+PIE.p"
-needs_weights = pytest.mark.skipif(not WEIGHTS.is_file(), reason="../shared/models/looking not present")
 
 
 def _hand_eval(state, x):
@@ -42,9 +38,8 @@ def _hand_eval(state, x):
     return 1.0 / (1.0 + math.exp(-linear("w2", y)[0]))
 
 
-@needs_weights
-def test_numpy_model_matches_hand_evaluation_to_1e6():
-    state = load_torch_state_dict(WEIGHTS)
+def test_numpy_model_matches_hand_evaluation_to_1e6(looking_weights):
+    state = load_torch_state_dict(looking_weights)
     assert state["w1.weight"].shape == (256, 51)
     assert state["linear_stages.1.l2.weight"].shape == (256, 256)
     model = LookingModel(state)
@@ -56,7 +51,7 @@ def test_numpy_model_matches_hand_evaluation_to_1e6():
     assert out.shape == (4,) and np.all((out > 0) & (out < 1))
     for i in range(4):
         assert out[i] == pytest.approx(_hand_eval(state, x[i]), abs=1e-6)
-    assert resolve_weights(WEIGHTS) == WEIGHTS
+    assert resolve_weights(looking_weights) == looking_weights
 
 
 def test_normalisation_follows_the_shared_readme():

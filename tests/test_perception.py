@@ -9,7 +9,10 @@ seated) may be found or not, but a box must lie on some person.
 from __future__ import annotations
 
 import json
+import math
 import os
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,37 +24,23 @@ from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, HeadConfidencePara
 from trustnav.perception.frames import FrameItem, iter_frames, natural_key
 from trustnav.perception.phone import PoseGeometryPhoneClassifier, phone_label
 from trustnav.perception.types import Person, box_iou, check_frame
-
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-STREET = SHARED / "data" / "street_images"
-SEQUENCES = SHARED / "data" / "sequences"
-WEIGHTS = SHARED / "models" / "looking" / "LookingModel_LOOK+PIE.p"
-needs_shared = pytest.mark.skipif(not STREET.is_dir() or not WEIGHTS.is_file(), reason="../shared not present")
-
-TRUTH = json.loads((Path(__file__).parent / "data" / "perception_truth.json").read_text())
-CLEAR = {name: [tuple(b) for b in boxes] for name, boxes in TRUTH["clear"].items()}
-OTHER = {name: [tuple(b) for b in boxes] for name, boxes in TRUTH["other"].items()}
+from trustnav.trust import PAPER_TRAITS, CueTrait, TrustEstimator
 
 
 def _inside(point, box) -> bool:
     return box[0] <= point[0] <= box[2] and box[1] <= point[1] <= box[3]
 
 
-def _rgb(path: Path) -> np.ndarray:
-    return next(iter_frames([path])).frame
+@pytest.fixture(scope="module")
+def truth(perception_truth):
+    """CLEAR and OTHER boxes by image name, and the rest of the hand-made truth."""
+    boxes = {k: {n: [tuple(b) for b in bs] for n, bs in perception_truth[k].items()} for k in ("clear", "other")}
+    return {**perception_truth, **boxes}
 
 
 @pytest.fixture(scope="module")
-def backend():
-    from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
-
-    with MediaPipePoseBackend() as b:
-        yield b
-
-
-@pytest.fixture(scope="module")
-def street_people(backend):
-    return {name: backend(_rgb(STREET / name)) for name in CLEAR}
+def street_people(mediapipe_backend, street_images, read_rgb, truth):
+    return {name: mediapipe_backend(read_rgb(street_images / name)) for name in truth["clear"]}
 
 
 # -- inputs and errors ---------------------------------------------------------------------------
@@ -118,14 +107,13 @@ def test_head_yaw_and_face_confidences_follow_the_turn():
     assert np.all(front[5:] == 1.0)  # body keypoints keep their visibility
 
 
-@needs_shared
 @pytest.mark.slow
-def test_crossing_eye_contact_ranks_facing_people_above_profiles(street_people):
+def test_crossing_eye_contact_ranks_facing_people_above_profiles(street_people, looking_model, truth):
     """People facing the camera: polo shirt, woman with scarf, blue sweater. In profile: the
     long-haired man (looking to his left) and the woman in the leather jacket (looking to her right)."""
-    from trustnav.perception.looking import LookingModel, normalise_keypoints
+    from trustnav.perception.looking import normalise_keypoints
 
-    model = LookingModel.from_file(WEIGHTS)
+    model = looking_model
     people = street_people["crossing.jpg"]
 
     def eye(box) -> float:
@@ -133,23 +121,22 @@ def test_crossing_eye_contact_ranks_facing_people_above_profiles(street_people):
         assert box_iou(match.bbox, box) > 0.4, f"nobody found at {box}"
         return float(model.predict(normalise_keypoints(match.keypoints, match.confidences, 1280)[None])[0])
 
-    facing = [eye(CLEAR["crossing.jpg"][i]) for i in TRUTH["crossing_facing"]]
-    profile = [eye(CLEAR["crossing.jpg"][i]) for i in TRUTH["crossing_profile"]]
+    facing = [eye(truth["clear"]["crossing.jpg"][i]) for i in truth["crossing_facing"]]
+    profile = [eye(truth["clear"]["crossing.jpg"][i]) for i in truth["crossing_profile"]]
     assert min(facing) > max(profile), (facing, profile)
     # BlazePose's own visibility (~1 everywhere) would not separate them: the occlusion model does
     assert min(facing) > 0.55 and min(profile) < 0.1
 
 
-@needs_shared
 @pytest.mark.slow
-def test_people_walking_across_the_view_score_low_eye_contact(street_people):
+def test_people_walking_across_the_view_score_low_eye_contact(street_people, looking_model, truth):
     """street_2: the woman in grey, the man in the striped shirt and the boy cross the road in
     profile. With BlazePose's visibility as confidences LOOKING would call them attentive (> 0.9)."""
-    from trustnav.perception.looking import LookingModel, normalise_keypoints
+    from trustnav.perception.looking import normalise_keypoints
 
-    model = LookingModel.from_file(WEIGHTS)
+    model = looking_model
     people = street_people["street_2.png"]
-    for gt in (CLEAR["street_2.png"][i] for i in TRUTH["street_2_crossing"]):
+    for gt in (truth["clear"]["street_2.png"][i] for i in truth["street_2_crossing"]):
         p = max(people, key=lambda q: box_iou(q.bbox, gt))
         assert box_iou(p.bbox, gt) > 0.4, f"nobody found at {gt}"
         ours = model.predict(normalise_keypoints(p.keypoints, p.confidences, 2048)[None])[0]
@@ -161,9 +148,9 @@ def test_people_walking_across_the_view_score_low_eye_contact(street_people):
 # -- detection on street images -----------------------------------------------------------------
 
 
-@needs_shared
 @pytest.mark.slow
-def test_street_images_find_most_clear_pedestrians_and_no_false_boxes(street_people):
+def test_street_images_find_most_clear_pedestrians_and_no_false_boxes(street_people, truth):
+    CLEAR, OTHER = truth["clear"], truth["other"]
     found = total = 0
     for name, people in street_people.items():
         boxes = [p.bbox for p in people]
@@ -178,7 +165,8 @@ def test_street_images_find_most_clear_pedestrians_and_no_false_boxes(street_peo
     assert found / total >= 0.8, f"found {found} of {total} clearly visible pedestrians"
 
 
-def test_empty_and_degenerate_frames_have_no_people(backend):
+def test_empty_and_degenerate_frames_have_no_people(mediapipe_backend):
+    backend = mediapipe_backend
     assert backend(np.zeros((240, 320, 3), dtype=np.uint8)) == []
     for shape in ((1, 1, 3), (3, 500, 3), (2000, 16, 3)):
         assert backend(np.zeros(shape, dtype=np.uint8)) == []
@@ -225,30 +213,29 @@ def test_phone_classifier_cues():
 # -- sequences: tracking, traits, trust ----------------------------------------------------------
 
 
-def _run_estimate(seq: str, out: Path) -> list[dict]:
+def _run_estimate(seq: Path, out: Path) -> list[dict]:
     from trustnav.cli import main
 
-    assert main(["estimate", str(SEQUENCES / seq), "--out", str(out)]) == 0
+    assert main(["estimate", str(seq), "--out", str(out)]) == 0
     rows = json.loads((out / "tracks.json").read_text())
     assert (out / "tracks.csv").read_text().splitlines()[0].startswith("frame,track_id,bbox,eye_contact,phone")
     return rows
 
 
 @pytest.fixture(scope="module")
-def walk_rows(tmp_path_factory):
-    return _run_estimate("walk_a", tmp_path_factory.mktemp("walk_a"))
+def walk_rows(sequences, looking_weights, tmp_path_factory):
+    return _run_estimate(sequences / "walk_a", tmp_path_factory.mktemp("walk_a"))
 
 
-WALK_A_FRAMES = sorted(p.name for p in (SEQUENCES / "walk_a").glob("*.png")) if SEQUENCES.is_dir() else []
+@pytest.fixture(scope="module")
+def walk_a_frames(sequences) -> list[str]:
+    return sorted(p.name for p in (sequences / "walk_a").glob("*.png"))
 
 
-def _track_at(rows: list[dict], frame_index: int, point) -> dict | None:
-    """The record of the narrowest box containing ``point`` in frame ``frame_index`` of walk_a."""
-    hits = [r for r in rows if r["frame"] == WALK_A_FRAMES[frame_index] and _inside(point, r["bbox"])]
+def _track_at(rows: list[dict], frame: str, point) -> dict | None:
+    """The record of the narrowest box containing ``point`` in ``frame``."""
+    hits = [r for r in rows if r["frame"] == frame and _inside(point, r["bbox"])]
     return min(hits, key=lambda r: r["bbox"][2] - r["bbox"][0]) if hits else None
-
-
-WALK_A_PEDESTRIANS = TRUTH["walk_a"]  # hand-followed: key frames [frame index, x, y] on the torso
 
 
 def _point(keys, k):
@@ -256,39 +243,44 @@ def _point(keys, k):
     return np.interp(k, frames, [x for _, x, _ in keys]), np.interp(k, frames, [y for _, _, y in keys])
 
 
-def _ids_along(rows: list[dict], keys) -> list[int]:
-    """Track IDs of the boxes on a hand-followed path, one per frame where it is detected."""
-    return [hit["track_id"] for k in range(keys[0][0], keys[-1][0] + 1) if (hit := _track_at(rows, k, _point(keys, k)))]
+def _ids_along(rows: list[dict], frames: list[str], keys) -> list[int]:
+    """Track IDs of the boxes on a hand-followed path (key frames [frame index, x, y] on the torso
+    of walk_a), one per frame where it is detected."""
+    return [
+        hit["track_id"]
+        for k in range(keys[0][0], keys[-1][0] + 1)
+        if (hit := _track_at(rows, frames[k], _point(keys, k)))
+    ]
 
 
-@needs_shared
 @pytest.mark.slow
-def test_walk_a_pedestrians_keep_one_id(walk_rows):
+def test_walk_a_pedestrians_keep_one_id(walk_rows, walk_a_frames, truth):
     """Measure: for each hand-followed pedestrian, the share of the frames where it is detected that
     carry its most frequent track ID (1.0 = never switched). Most pedestrians must keep >= 0.8."""
-    assert len(WALK_A_FRAMES) == 45
+    assert len(walk_a_frames) == 45
     kept = {}
-    for name, keys in WALK_A_PEDESTRIANS.items():
-        ids = _ids_along(walk_rows, keys)
+    for name, keys in truth["walk_a"].items():
+        ids = _ids_along(walk_rows, walk_a_frames, keys)
         assert len(ids) >= 0.5 * (keys[-1][0] - keys[0][0] + 1), f"{name}: detected in only {len(ids)} frames"
         kept[name] = max(ids.count(i) for i in set(ids)) / len(ids)
     assert sum(v >= 0.8 for v in kept.values()) >= 2, kept
 
 
-@needs_shared
 @pytest.mark.slow
-def test_phone_user_ends_with_lower_phone_trait_and_trust_than_walkers(walk_rows, tmp_path):
-    phone_rows = _run_estimate("phone_a", tmp_path / "phone_a")
+def test_phone_user_ends_with_lower_phone_trait_and_trust_than_walkers(
+    walk_rows, walk_a_frames, truth, sequences, tmp_path
+):
+    phone_rows = _run_estimate(sequences / "phone_a", tmp_path / "phone_a")
     frames = sorted({r["frame"] for r in phone_rows})
     # the woman in the light padded jacket: left of the woman in black, x ~ 280 in the last frame
-    point = TRUTH["phone_a_user_last_frame_point"]
+    point = truth["phone_a_user_last_frame_point"]
     last = [r for r in phone_rows if r["frame"] == frames[-1] and _inside(point, r["bbox"])]
     assert last, "phone user not found in the last frame"
     woman = last[0]
     assert len([r for r in phone_rows if r["track_id"] == woman["track_id"]]) >= 3  # one track
     walkers = []
-    for name in TRUTH["walk_a_no_phone"]:  # the standing old man and the man walking away
-        ids = _ids_along(walk_rows, WALK_A_PEDESTRIANS[name])
+    for name in truth["walk_a_no_phone"]:  # the standing old man and the man walking away
+        ids = _ids_along(walk_rows, walk_a_frames, truth["walk_a"][name])
         assert ids, f"{name} not found"
         track = max(set(ids), key=ids.count)
         walkers.append([r for r in walk_rows if r["track_id"] == track][-1])  # its final state
@@ -300,24 +292,23 @@ def test_phone_user_ends_with_lower_phone_trait_and_trust_than_walkers(walk_rows
 # -- the command line: videos, bad frames, optional backends ----------------------------------------
 
 
-@needs_shared
 @pytest.mark.slow
-def test_estimate_on_a_video_writes_an_annotated_mp4(tmp_path):
+def test_estimate_on_a_video_writes_an_annotated_mp4(sequences, looking_weights, tmp_path, out_dir):
     import cv2
 
     from trustnav.cli import main
 
     video = tmp_path / "clip.mp4"
-    frames = sorted((SEQUENCES / "phone_a").glob("*.png"))
+    frames = sorted((sequences / "phone_a").glob("*.png"))
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 5.0, (640, 480))
     for f in frames:
         writer.write(cv2.imread(str(f)))
     writer.release()
-    assert main(["estimate", str(video), "--out", str(tmp_path / "out")]) == 0
-    cap = cv2.VideoCapture(str(tmp_path / "out" / "annotated.mp4"))
+    assert main(["estimate", str(video), "--out", str(out_dir)]) == 0
+    cap = cv2.VideoCapture(str(out_dir / "annotated.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(frames)
     cap.release()
-    rows = json.loads((tmp_path / "out" / "tracks.json").read_text())
+    rows = json.loads((out_dir / "tracks.json").read_text())
     assert rows and all(r["frame"].startswith("clip.mp4#") for r in rows)
     for r in rows:
         assert 0.0 <= r["eye_contact"] <= 1.0 and 0.0 <= r["phone"] <= 1.0 and 0.0 <= r["trust"] <= 1.0
@@ -325,23 +316,22 @@ def test_estimate_on_a_video_writes_an_annotated_mp4(tmp_path):
         assert 0 <= x1 < x2 <= 640 and 0 <= y1 < y2 <= 480
 
 
-@needs_shared
-def test_one_unreadable_frame_is_skipped_not_fatal(tmp_path, capsys):
+def test_one_unreadable_frame_is_skipped_not_fatal(sequences, looking_weights, tmp_path, out_dir, capsys):
     import shutil
 
     from trustnav.cli import main
 
     seq = tmp_path / "seq"
     seq.mkdir()
-    good = sorted((SEQUENCES / "phone_a").glob("*.png"))[3:5]
+    good = sorted((sequences / "phone_a").glob("*.png"))[3:5]
     shutil.copy(good[0], seq / "f1.png")
     (seq / "f2.png").write_bytes(b"\x89PNG broken")
     shutil.copy(good[1], seq / "f3.png")
-    assert main(["estimate", str(seq), "--out", str(tmp_path / "out")]) == 0
+    assert main(["estimate", str(seq), "--out", str(out_dir)]) == 0
     assert "skipped frame f2.png" in capsys.readouterr().err
-    rows = json.loads((tmp_path / "out" / "tracks.json").read_text())
+    rows = json.loads((out_dir / "tracks.json").read_text())
     assert {r["frame"] for r in rows} == {"f1.png", "f3.png"}
-    assert sorted(p.name for p in (tmp_path / "out" / "frames").iterdir()) == ["f1.png", "f3.png"]
+    assert sorted(p.name for p in (out_dir / "frames").iterdir()) == ["f1.png", "f3.png"]
 
 
 def test_missing_optional_backend_says_what_to_install(monkeypatch):
@@ -425,15 +415,11 @@ def _walker(x: float) -> Person:
     return Person(bbox=np.array([x, 0.0, x + 20, 100]), keypoints=kp, confidences=np.full(17, 0.9), score=0.9)
 
 
-@needs_shared
-def test_pipeline_updates_trust_only_for_people_seen():
-    from trustnav.perception.looking import LookingModel
-    from trustnav.perception.pipeline import PerceptionPipeline, estimate
-    from trustnav.perception.tracking import PersonTracker
-    from trustnav.trust.estimator import TrustEstimator
+def test_pipeline_updates_trust_only_for_people_seen(make_pipeline):
+    from trustnav.perception.pipeline import estimate
 
     script = [[_walker(10)], [_walker(12)], [], [_walker(16)]]
-    pipe = PerceptionPipeline(_ScriptedBackend(script), PersonTracker(fps=10), LookingModel.from_file(WEIGHTS))
+    pipe = make_pipeline(_ScriptedBackend(script), fps=10)
     frames = [FrameItem(f"f{i}", i, np.zeros((120, 160, 3), dtype=np.uint8)) for i in range(4)]
     est = TrustEstimator()
     results = list(estimate(frames, pipe, est, fps=10.0))
@@ -467,26 +453,26 @@ def test_mirrored_head_swaps_left_and_right_confidences(yaw):
     assert c[1] == pytest.approx(m[2]) and c[3] == pytest.approx(m[4])  # left <-> right
 
 
-@needs_shared
 @pytest.mark.skipif(not os.environ.get("TRUSTNAV_YOLO_WEIGHTS"), reason="set TRUSTNAV_YOLO_WEIGHTS to a YOLO-pose .pt")
-def test_yolo_pose_backend_finds_the_crossing_pedestrians():
+def test_yolo_pose_backend_finds_the_crossing_pedestrians(street_images, read_rgb, truth):
     pytest.importorskip("ultralytics")
     from trustnav.perception.optional_backends import make_backend
 
-    people = make_backend("yolo", weights=os.environ["TRUSTNAV_YOLO_WEIGHTS"])(_rgb(STREET / "crossing.jpg"))
-    found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
-    assert found >= 0.8 * len(CLEAR["crossing.jpg"])
+    people = make_backend("yolo", weights=os.environ["TRUSTNAV_YOLO_WEIGHTS"])(read_rgb(street_images / "crossing.jpg"))
+    clear = truth["clear"]["crossing.jpg"]
+    found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in clear)
+    assert found >= 0.8 * len(clear)
 
 
-@needs_shared
 @pytest.mark.skipif(not os.environ.get("TRUSTNAV_OPENPIFPAF"), reason="set TRUSTNAV_OPENPIFPAF=1 with openpifpaf")
-def test_openpifpaf_backend_finds_the_crossing_pedestrians():
+def test_openpifpaf_backend_finds_the_crossing_pedestrians(street_images, read_rgb, truth):
     pytest.importorskip("openpifpaf")
     from trustnav.perception.optional_backends import make_backend
 
-    people = make_backend("openpifpaf")(_rgb(STREET / "crossing.jpg"))
-    found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in CLEAR["crossing.jpg"])
-    assert found >= 0.8 * len(CLEAR["crossing.jpg"])
+    people = make_backend("openpifpaf")(read_rgb(street_images / "crossing.jpg"))
+    clear = truth["clear"]["crossing.jpg"]
+    found = sum(any(box_iou(p.bbox, gt) > 0.4 for p in people) for gt in clear)
+    assert found >= 0.8 * len(clear)
 
 
 @pytest.mark.parametrize("fps", ["x", None, 0, -1.0, float("nan"), float("inf"), True])
@@ -495,3 +481,124 @@ def test_tracker_refuses_a_bad_frame_rate_with_a_clear_error(fps):
 
     with pytest.raises(ValueError, match="fps must be a positive finite number"):
         PersonTracker(fps=fps)
+
+
+# -- traits as parts: a new cue and its trait plug in from outside trustnav ------------------------
+
+
+@dataclass(frozen=True)
+class HeadTurnedCue:
+    """A user's cue: how far the face is turned away from the camera (1 - mean face confidence)."""
+
+    name: str = "head_turned"
+
+    def __call__(self, frame, people):
+        return [float(1.0 - np.mean(p.confidences[:5])) for p in people]
+
+
+@dataclass(frozen=True)
+class FacesTraffic(CueTrait):
+    """A user's trait: s(0) = 1 - c; s(t) = 0.5 s(t-1) + 0.5 (1 - c(t))."""
+
+    name: str = "faces_traffic"
+    weight: float = 0.25
+    cue: str = "head_turned"
+
+    def start(self, c):
+        return 1.0 - c
+
+    def step(self, prev, c):
+        return 0.5 * prev + 0.5 * (1.0 - c)
+
+
+def _turned(x: float, face: float) -> Person:
+    p = _walker(x)
+    return Person(p.bbox, p.keypoints, np.r_[np.full(5, face), np.full(12, 0.9)], 0.9)
+
+
+def test_a_users_cue_and_trait_plug_into_pipeline_and_estimator(make_pipeline, looking_model):
+    from trustnav.perception.cues import default_cues
+    from trustnav.perception.pipeline import estimate
+
+    script = [[_turned(10, 0.8)], [_turned(12, 0.2)], [_turned(14, 0.2)]]
+    frames = [FrameItem(f"f{i}", i, np.zeros((120, 160, 3), dtype=np.uint8)) for i in range(3)]
+    pipe = make_pipeline(_ScriptedBackend(script), cues=[*default_cues(looking_model), HeadTurnedCue()])
+    est = TrustEstimator(traits=[*PAPER_TRAITS, FacesTraffic()])
+    results = list(estimate(frames, pipe, est, fps=10.0))
+    recs = [r.records[0] for r in results]
+    assert [r["head_turned"] for r in recs] == pytest.approx([0.2, 0.8, 0.8])
+    # the user's trait follows its own formulas: 1 - 0.2; then 0.5 s + 0.5 (1 - 0.8), twice
+    assert [r["faces_traffic_trait"] for r in recs] == pytest.approx([0.8, 0.5, 0.35], abs=1e-4)
+    st = est.tracks[recs[0]["track_id"]]
+    assert st.value("faces_traffic") == pytest.approx(0.35)
+    # lin_comb over four traits: weights 0.4, 0.5, 0.1, 0.25 shared out over their sum
+    s = np.array([st.smartphone, st.eye, st.pose, st.value("faces_traffic")])
+    assert st.score == pytest.approx(float(s @ [0.4, 0.5, 0.1, 0.25]) / 1.25)
+    # the paper's cues are what the default pipeline computes on the same people
+    plain = make_pipeline(_ScriptedBackend(list(script)))
+    again = list(estimate(frames, plain, TrustEstimator(), fps=10.0))
+    for mine, paper in zip(recs, (r.records[0] for r in again), strict=True):
+        assert (mine["eye_contact"], mine["phone"]) == (paper["eye_contact"], paper["phone"])
+        assert "head_turned" not in paper and "faces_traffic_trait" not in paper
+
+
+def test_pipeline_cues_default_to_the_papers_and_are_checked(make_pipeline, looking_model):
+    from trustnav.perception.cues import EyeContactCue, PhoneUseCue
+    from trustnav.perception.pipeline import PerceptionPipeline
+    from trustnav.perception.tracking import PersonTracker
+
+    pipe = make_pipeline(_ScriptedBackend([[_walker(10)]]))
+    assert [type(c) for c in pipe.cues] == [EyeContactCue, PhoneUseCue]
+    assert [c.name for c in pipe.cues] == ["eye_contact", "smartphone"]
+    assert pipe.eye_model is looking_model and isinstance(pipe.phone, PoseGeometryPhoneClassifier)
+    frame = np.zeros((120, 160, 3), dtype=np.uint8)
+
+    class Bad:
+        name = "bad"
+
+        def __init__(self, values):
+            self.values = values
+
+        def __call__(self, frame, people):
+            return self.values
+
+    for values, message in (([0.5, 0.5], "gave 2 confidences for 1 people"), ([1.5], r"must lie in \[0, 1\]")):
+        bad = make_pipeline(_ScriptedBackend([[_walker(10)]]), cues=[Bad(values)])
+        with pytest.raises(ValueError, match=message):
+            bad(frame)
+    with pytest.raises(ValueError, match="cue names must be unique, 'bad' appears twice"):
+        make_pipeline(_ScriptedBackend([]), cues=[Bad([]), Bad([])])
+    with pytest.raises(ValueError, match="either eye_model/phone"):
+        PerceptionPipeline(_ScriptedBackend([]), PersonTracker(fps=10), looking_model, cues=[Bad([])])
+    with pytest.raises(ValueError, match="eye_model must be a LookingModel"):
+        PerceptionPipeline(_ScriptedBackend([]), PersonTracker(fps=10))
+    # a cue that cannot judge a person (NaN) leaves that trait input missing
+    only = make_pipeline(_ScriptedBackend([[_walker(10)]]), cues=[Bad([float("nan")])])
+    (tp,) = only(frame)
+    assert math.isnan(tp.eye_contact) and math.isnan(tp.phone) and math.isnan(tp.cues["bad"])
+    (obs,) = only.observations([tp], 0.0)
+    assert obs.c_eye is None and obs.c_smartphone is None and obs.cue("bad") is None
+
+
+# -- no global state changed by perception -------------------------------------------------------------
+
+
+def test_mediapipe_backend_leaves_environment_and_warnings_filters_as_it_found_them(monkeypatch):
+    pytest.importorskip("mediapipe")
+    from trustnav.perception.mediapipe_backend import (
+        QUIET_ENV,
+        MediaPipeConfig,
+        MediaPipePoseBackend,
+        quiet_environment,
+    )
+
+    for key in QUIET_ENV:
+        monkeypatch.delenv(key, raising=False)
+    with quiet_environment():  # the levels are set while MediaPipe starts ...
+        assert all(os.environ[k] == v for k, v in QUIET_ENV.items())
+    assert not any(k in os.environ for k in QUIET_ENV)  # ... and only then
+    filters = list(warnings.filters)
+    with MediaPipePoseBackend(MediaPipeConfig(workers=1)) as backend:
+        assert backend(np.zeros((96, 128, 3), dtype=np.uint8)) == []
+    assert not any(k in os.environ for k in QUIET_ENV)
+    assert list(warnings.filters) == filters

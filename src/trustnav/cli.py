@@ -48,7 +48,7 @@ def prepare_out(out: Path, overwrite: bool, outputs: tuple[str, ...]) -> Path:
 
 
 def _scenario(args: argparse.Namespace) -> int:
-    from trustnav.control.solvers import make_solver
+    from trustnav.sim.engine import make_solver
     from trustnav.sim.paper import run_scenario
     from trustnav.viz.paper_plots import plot_scenario
 
@@ -273,13 +273,34 @@ def _drive_runs(
     out: Path,
     video: bool = True,
     control_rate: float | None = None,
+    run_variant: object = None,
+    label: str = "",
 ) -> list[tuple[str, dict, Path]]:
-    """Run a driving case (Case II: both variants unless one is asked for) and write its outputs."""
+    """Run a driving case (Case II: both variants unless one is asked for) and write its outputs.
+
+    ``run_variant(scenario, attentive, progress) -> DriveResult`` drives one variant (default:
+    trustnav's own world, :func:`trustnav.sim.driving.run_drive`; the CARLA bridge gives its own);
+    ``label`` tags the world in titles ("CARLA")."""
     from tqdm import tqdm
 
     from trustnav.sim.driving import load_drive_scenario, make_render_sensing, run_drive
     from trustnav.viz.drive_plots import plot_distance, plot_top_view, write_drive_outputs
 
+    def own_world(sc, att, progress):  # type: ignore[no-untyped-def]
+        renderer = pipeline = None
+        if sensing == "render":
+            renderer, pipeline = make_render_sensing(sc, rate)
+        try:
+            return run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
+                             control_rate=control_rate, renderer=renderer, pipeline=pipeline,
+                             progress=progress)  # fmt: skip
+        finally:
+            if renderer is not None:
+                renderer.close()
+            if pipeline is not None and hasattr(pipeline.backend, "close"):
+                pipeline.backend.close()
+
+    drive_one = run_variant or own_world
     sc = load_drive_scenario(case)
     if attentive is not None:
         variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
@@ -288,25 +309,25 @@ def _drive_runs(
     else:
         variants = [("", None)]
     done, results = [], []
+    where_tag = f"{label}, " if label else ""
     for tag, att in variants:
         where = out / tag if len(variants) > 1 else out
-        renderer = pipeline = None
-        if sensing == "render":
-            renderer, pipeline = make_render_sensing(sc, rate)
-        desc = f"{case}{' ' + tag if tag else ''} ({sensing})"
+        desc = f"{case}{' ' + tag if tag else ''} ({where_tag}{sensing})"
+        bars: list = []  # made at the first progress report (after a world has opened)
+
+        def progress(t: float, _d: float, bars: list = bars, desc: str = desc) -> None:
+            if not bars:
+                bars.append(tqdm(total=sc.duration, desc=desc, unit="s",
+                                 bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]"))  # fmt: skip
+            bars[0].update(t - bars[0].n)
+
         try:
-            with tqdm(total=sc.duration, desc=desc, unit="s", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim "
-                      "[{elapsed}]") as bar:  # fmt: skip
-                result = run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
-                                   control_rate=control_rate, renderer=renderer, pipeline=pipeline,
-                                   progress=lambda t, _d, bar=bar: bar.update(t - bar.n))  # fmt: skip
+            result = drive_one(sc, att, progress)  # type: ignore[operator]
+        finally:
+            for bar in bars:
                 bar.total = bar.n
                 bar.refresh()
-        finally:
-            if renderer is not None:
-                renderer.close()
-            if pipeline is not None and hasattr(pipeline.backend, "close"):
-                pipeline.backend.close()
+                bar.close()
         metrics = result.metrics()
         where.mkdir(parents=True, exist_ok=True)
         write_drive_outputs(result, where, video=video)
@@ -315,7 +336,7 @@ def _drive_runs(
         results.append(result)
     if len(results) > 1:
         plot_distance(results, out / "distance.png")
-        plot_top_view(results, out / "top_view.png", title=f"{sc.title} [{sensing} sensing]")
+        plot_top_view(results, out / "top_view.png", title=f"{sc.title} [{where_tag}{sensing} sensing]")
         (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
     return done
 
@@ -336,28 +357,43 @@ def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
 def _drive(args: argparse.Namespace) -> int:
     from trustnav.sim.driving import DRIVE_SCENARIOS
 
-    if args.world == "carla":
-        from trustnav.carla_bridge.command import run_carla_drive
-
-        return run_carla_drive(args)
-
     if args.case not in DRIVE_SCENARIOS:
         raise ValueError(f"unknown case {args.case!r}: expected one of {', '.join(DRIVE_SCENARIOS)}")
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate must be a positive number of frames per second, got {args.rate}")
     if args.control_rate is not None and not args.control_rate > 0:
         raise ValueError(f"--control-rate must be a positive number of steps per second, got {args.control_rate}")
+    run_variant, label, on = None, "", ""
+    errors: tuple[type[Exception], ...] = ()  # a world's failures that carry their own exit code
+    if args.world == "carla":
+        from trustnav.carla_bridge.command import CarlaCommandError, carla_runner
+
+        errors = (CarlaCommandError,)
+
+        try:
+            address, run_variant = carla_runner(args)
+        except CarlaCommandError as exc:
+            print(f"trustnav: error: {exc}", file=sys.stderr)
+            return exc.code
+        label, on = "CARLA", f" on CARLA at {address}"
     default = f"out/{args.case}" if args.sensing == "render" else f"out/{args.case}-{args.sensing}"
+    if args.world == "carla":
+        default += "-carla"
     out = prepare_out(Path(args.out or default), args.overwrite, DRIVE_OUTPUTS)
-    done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, out, video=not args.no_video,
-                       control_rate=args.control_rate)  # fmt: skip
+    try:
+        done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, out,
+                           video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
+                           label=label)  # fmt: skip
+    except errors as exc:
+        print(f"trustnav: error: {exc}", file=sys.stderr)
+        return int(exc.code)  # type: ignore[attr-defined]
     files = "top_view.png, trust.png, distance.png, drive.mp4, frames/, metrics.json"
     if args.no_video:
         files = files.replace("drive.mp4, ", "")
     if len(done) > 1:
         runs = ", ".join(f"{tag}/" for tag, _, _ in done)
         files = f"top_view.png, distance.png, metrics.json comparing the runs; per run in {runs}: {files}"
-    print(f"drive {args.case} ({args.sensing} sensing): wrote {out}/ ({files})")
+    print(f"drive {args.case}{on} ({args.sensing} sensing): wrote {out}/ ({files})")
     _drive_summary(done, out)
     return 0
 

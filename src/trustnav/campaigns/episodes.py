@@ -1,20 +1,22 @@
 """One episode runner for every family: (family, parameters, seed) -> record.
 
-Each family calls the same code as the command line (no copies): ``paper`` runs
-:func:`trustnav.sim.paper.run_episode` on a shipped scenario with overrides; ``random_si`` and
-``random_bicycle`` sample :func:`trustnav.sim.random_worlds.sample_world` and run
-:func:`~trustnav.sim.random_worlds.run_world` (the reliability study's generator and record);
-``drive`` runs :func:`trustnav.sim.driving.run_drive` with ``keypoints`` sensing.
+Each family calls the same code as the command line (no copies), and every episode runs on the one
+episode engine (:mod:`trustnav.sim.engine`): ``paper`` runs :func:`trustnav.sim.paper.run_episode`
+on a shipped scenario with overrides; ``random_si`` and ``random_bicycle`` sample
+:func:`trustnav.sim.random_worlds.sample_world` and run :func:`~trustnav.sim.random_worlds.run_world`
+(the reliability study's generator and record); ``drive`` runs :func:`trustnav.sim.driving.run_drive`
+with ``keypoints`` sensing.
 
 Every episode is a pure function of (family, parameters, seed): the controller's wall-clock step
-deadline is set long (``deadline``, default 10 s) so that the machine's speed cannot change a
-plan; the wall step time is measured and reported separately (``step_ms_*``).
+deadline is set long (``deadline``, default :data:`~trustnav.sim.engine.SIMULATION_DEADLINE`) so that
+the machine's speed cannot change a plan; the wall step time is measured and reported separately
+(``step_ms_*``, the controller's step on the engine's clock for every family).
 
 The record (one JSON line) has the campaign fields ``key sweep point point_id family params seed
-status error traceback wall_s cpu_s`` (wall and process CPU time of the episode) and, for every
-family, the outcome fields of :data:`OUTCOME_FIELDS` (null where a family does not measure one),
-plus the family's own metrics: the random families keep every field of ``run_world``'s record; ``paper`` and
-``drive`` keep their ``metrics.json`` entries under ``extra``.
+status error traceback wall_s cpu_s`` (wall and process CPU time of the episode) and the outcome
+fields of :data:`OUTCOME_FIELDS`: the engine's :meth:`~trustnav.sim.engine.EpisodeResult.to_record`,
+one shape for every family; plus the family's own metrics: the random families keep every field of
+``run_world``'s record; ``paper`` and ``drive`` keep their ``metrics.json`` entries under ``extra``.
 """
 
 from __future__ import annotations
@@ -27,63 +29,18 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from trustnav.campaigns.spec import EpisodeTask
 from trustnav.control import MpcConfig
+from trustnav.sim.engine import RECORD_FIELDS, SIMULATION_DEADLINE, STEP_MS_EDGES, step_histogram
 from trustnav.sim.paper import PaperScenario, episode_metrics, load_scenario, run_episode, with_overrides
 
 __all__ = ["DEFAULT_DEADLINE", "OUTCOME_FIELDS", "STEP_MS_EDGES", "run_batch", "run_episode_task", "step_histogram"]
 
 #: Controller step deadline (s, wall clock) of campaign episodes unless a spec sets ``deadline``.
-DEFAULT_DEADLINE = 10.0
-#: Edges (ms) of the step-time histogram kept in every record: 20 log bins per decade, 0.01 ms-100 s.
-STEP_MS_EDGES = 10.0 ** np.linspace(-2.0, 5.0, 141)
-
-OUTCOME_FIELDS = (
-    "steps",  # control steps run
-    "reached_goal",
-    "time_to_goal",  # s (simulated), null if not reached
-    "min_distance",  # m, closest ego-pedestrian distance over the episode
-    "breach",  # min_distance < R: the margin of `h_quad` was violated
-    "safety_radius",  # R (m)
-    "relaxed_steps",  # steps whose plan used slack on a `cbf_imp` row (no hard-feasible plan found)
-    "relaxed_checked",  # relaxed steps re-checked independently (record.check_relaxed)
-    "relaxed_but_feasible",  # ... of which the independent SLSQP found a plan meeting every row
-    "fallback_steps",
-    "recovered_steps",
-    "deadline_steps",
-    "failed_steps",  # solver status FAILED
-    "horizon",  # N_h
-    "n_p",  # pedestrians
-    "ped_min_distance",  # per pedestrian (m)
-    "ped_trust",  # per pedestrian: the trust the controller used (at the closest approach for drive)
-    "step_ms_median",  # wall (random) or solver (paper, drive) time per step, ms
-    "step_ms_p99",
-    "step_ms_max",
-    "step_ms_hist",  # {bin index: count} on STEP_MS_EDGES
-)
-
-
-def step_histogram(ms: NDArray[np.float64]) -> dict[str, int]:
-    """Sparse histogram of step times (ms) on :data:`STEP_MS_EDGES` (mergeable across records)."""
-    idx = np.clip(
-        np.searchsorted(STEP_MS_EDGES, np.asarray(ms, dtype=float), side="right") - 1, 0, len(STEP_MS_EDGES) - 2
-    )
-    vals, counts = np.unique(idx, return_counts=True)
-    return {str(int(v)): int(c) for v, c in zip(vals, counts, strict=True)}
-
-
-def _times(ms: NDArray[np.float64]) -> dict[str, Any]:
-    ms = np.asarray(ms, dtype=float)
-    if ms.size == 0:
-        return {"step_ms_median": None, "step_ms_p99": None, "step_ms_max": None, "step_ms_hist": {}}
-    return {
-        "step_ms_median": float(np.median(ms)),
-        "step_ms_p99": float(np.percentile(ms, 99)),
-        "step_ms_max": float(ms.max()),
-        "step_ms_hist": step_histogram(ms),
-    }
+DEFAULT_DEADLINE = SIMULATION_DEADLINE
+#: The outcome fields of every record: the engine's one record shape.
+OUTCOME_FIELDS = RECORD_FIELDS
 
 
 def _gamma(base: Any, p: Mapping[str, Any]) -> Any:
@@ -118,37 +75,10 @@ def _random(task: EpisodeTask) -> dict[str, Any]:
         lo, hi = p["trust_range"]
         trusts = lo + (hi - lo) * trusts  # the sampled trusts are uniform in [0, 1]
     world = replace(world, config=cfg, trusts=trusts, v_max=float(p.get("v_max", world.v_max)))
-    rec = run_world(world, check_relaxed=task.record.check_relaxed, keep_step_times=True)
-    ms = np.asarray(rec["step_ms"], dtype=float)
-    out = dict(rec)
-    out.update(_times(ms))
-    if not task.record.step_times:
-        out["step_ms"] = out["step_cpu_ms"] = None
-    reached = bool(rec["reached_goal"])
-    out["time_to_goal"] = rec["steps"] * cfg.dt if reached else None
-    out["safety_radius"] = cfg.safety_radius
-    return out
+    return run_world(world, check_relaxed=task.record.check_relaxed, keep_step_times=task.record.step_times)
 
 
 # ---------------------------------------------------------------------------------------------- paper scenarios
-
-
-def _safety_fields(mins: list[float], breach: bool, radius: float, relaxed: int, m: dict[str, Any]) -> dict[str, Any]:
-    """The safety part of a ``paper`` / ``drive`` record (no independent check, no recovery or
-    deadline counts there): closest approaches, breach, R, relaxed, fallback and failed steps."""
-    return {
-        "min_distance": float(min(mins)),
-        "breach": breach,
-        "safety_radius": radius,
-        "relaxed_steps": relaxed,
-        "relaxed_checked": 0,
-        "relaxed_but_feasible": 0,
-        "fallback_steps": m["fallback_steps"],
-        "recovered_steps": None,
-        "deadline_steps": None,
-        "failed_steps": m["solver_failures"],
-        "ped_min_distance": mins,
-    }
 
 
 @dataclass(frozen=True)
@@ -188,20 +118,9 @@ def _paper(task: EpisodeTask) -> dict[str, Any]:
     else:
         trusts = [q.trust for q in sc.pedestrians]
     ep = run_episode(sc, horizon=p.get("horizon"), trusts=trusts, solver=p.get("solver", "sqp"), timing=p.get("timing"))
+    assert ep.result is not None
     m = episode_metrics(ep, sc.safety_radius)
-    steps = len(ep.statuses)
-    mins = m["min_distance"]
-    return {
-        "steps": steps,
-        "reached_goal": bool(ep.reached_goal),
-        "time_to_goal": None if m["steps_to_goal"] is None else m["steps_to_goal"] * sc.dt,
-        **_safety_fields(mins, bool(m["margin_violations"] > 0), sc.safety_radius, m["slack_steps"], m),
-        "horizon": ep.horizon,
-        "n_p": n,
-        "ped_trust": [float(t) for t in trusts],
-        **_times(ep.solve_times * 1e3),
-        "extra": {k: v for k, v in m.items() if k != "median_solve_ms"},  # timing lives in step_ms_*
-    }
+    return {**ep.result.to_record(), "extra": {k: v for k, v in m.items() if k != "median_solve_ms"}}
 
 
 # ---------------------------------------------------------------------------------------------- driving world
@@ -227,23 +146,10 @@ def _drive(task: EpisodeTask) -> dict[str, Any]:
         capture_rate=p.get("capture_rate"),
         control_rate=p.get("control_rate"),
     )
+    assert r.episode is not None
     m = drive_metrics(r)
-    d = r.distances
-    closest = np.argmin(d, axis=0)
-    ped_trust = [float(r.trusts[closest[j], j]) for j in range(d.shape[1])]
-    mins = [q["min_distance"] for q in m["pedestrians"]]
-    radius = sc.control.safety_radius
-    return {
-        "steps": m["control_steps"],
-        "reached_goal": m["reached_goal"],
-        "time_to_goal": m["time_to_goal"],
-        **_safety_fields(mins, bool(min(mins) < radius - 1e-6), radius, m["relaxed_steps"], m),
-        "horizon": sc.control.horizon,
-        "n_p": len(sc.pedestrians),
-        "ped_trust": ped_trust,
-        **_times(r.solve_times * 1e3),
-        "extra": {k: v for k, v in m.items() if k not in ("per_frame", "solve_ms_median", "solve_ms_p95")},
-    }
+    extra = {k: v for k, v in m.items() if k not in ("per_frame", "solve_ms_median", "solve_ms_p95")}
+    return {**r.episode.to_record(), "extra": extra}
 
 
 _RUNNERS = {"paper": _paper, "random_si": _random, "random_bicycle": _random, "drive": _drive}

@@ -20,13 +20,14 @@ from trustnav.campaigns.summary import TRUST_BANDS, wilson
 __all__ = ["write_figures"]
 
 
-def _plt() -> Any:
-    import matplotlib
+def _figure(figsize: tuple[float, float], ncols: int = 1) -> tuple[Any, Any]:
+    """A Figure on its own Agg canvas and its Axes (no pyplot state, no global backend switch)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig = Figure(figsize=figsize, dpi=120)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(1, ncols)
 
 
 def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: Path) -> bool:
@@ -40,8 +41,7 @@ def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: P
         return False
     t, d = np.array(pairs).T
     radius = next((r["safety_radius"] for r in recs if r.get("safety_radius")), None)
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    fig, ax = _figure((6.4, 4.2))
     ax.scatter(
         t,
         d,
@@ -75,7 +75,6 @@ def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: P
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return True
 
 
@@ -83,8 +82,7 @@ def _rates_vs(name: str, label: str, groups: Mapping[float, Sequence[Mapping[str
     xs = sorted(groups)
     if len(xs) < 2:
         return False
-    plt = _plt()
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11.5, 3.8), dpi=120)
+    fig, (ax, ax2) = _figure((11.5, 3.8), ncols=2)
     for key, color, text in (
         ("breach", "tab:red", "margin violation"),
         ("relaxed", "tab:purple", "infeasible (relaxed step)"),
@@ -136,7 +134,6 @@ def _rates_vs(name: str, label: str, groups: Mapping[float, Sequence[Mapping[str
     fig.suptitle(f"{name}: rates and closest approach vs {label} ({n} episodes)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return True
 
 

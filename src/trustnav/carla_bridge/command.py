@@ -1,105 +1,71 @@
-"""``trustnav drive case-1|case-2 --world carla [--host H --port P --timeout S]``.
+"""The CARLA side of ``trustnav drive case-1|case-2 --world carla [--host H --port P --timeout S]``.
 
-Runs the case (Case II: attentive and distracted unless one is asked for) on a CARLA server and
-writes the same outputs as ``trustnav drive`` (figures, annotated frames, MP4, metrics.json with
-``"world": "carla"``). Exit codes: 0 done; 2 bad input, ``carla`` not installed or no server
-(one line on stderr, no traceback); 1 a CARLA error during the run; 130 interrupted (Ctrl-C or
-SIGTERM). In every case the session restores the world's settings and destroys what it spawned.
+:func:`carla_runner` checks the ``carla`` package and the options and returns the function that
+drives one variant of a case on the server; ``trustnav.cli`` runs the variants and writes the outputs
+(the same output-folder checks, figures, frames, MP4 and metrics.json, with ``"world": "carla"``,
+as ``trustnav drive``). Failures raise :class:`CarlaCommandError` with the CLI's exit code: 2 bad
+input, ``carla`` not installed or no server; 1 a CARLA error during the run; 130 interrupted
+(Ctrl-C or SIGTERM). In every case the session restores the world's settings and destroys what it
+spawned.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 from trustnav.carla_bridge.session import CarlaError, CarlaNotInstalled, CarlaOptions, CarlaUnavailable, load_carla
 
-__all__ = ["run_carla_drive"]
+__all__ = ["CarlaCommandError", "carla_runner"]
+
+Progress = Callable[[float, float], None]
 
 
-def run_carla_drive(args: argparse.Namespace) -> int:
-    """The ``--world carla`` branch of ``trustnav drive``; returns the exit code."""
+class CarlaCommandError(Exception):
+    """A ``--world carla`` failure: ``message`` for one stderr line and the exit ``code``."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def carla_runner(args: argparse.Namespace) -> tuple[str, Callable[[Any, bool | None, Progress | None], Any]]:
+    """(where: "H:P", run_variant(scenario, attentive, progress) -> DriveResult) for ``args``."""
     try:
         carla = load_carla()
     except CarlaNotInstalled as exc:
-        return _fail(str(exc), 2)
-    from trustnav.sim.driving import DRIVE_SCENARIOS, load_drive_scenario
-
-    if args.case not in DRIVE_SCENARIOS:
-        return _fail(f"unknown case {args.case!r}: expected one of {', '.join(DRIVE_SCENARIOS)}", 2)
-    for name, value in (("--rate", args.rate), ("--control-rate", args.control_rate)):
-        if value is not None and not value > 0:
-            return _fail(f"{name} must be a positive number, got {value}", 2)
+        raise CarlaCommandError(str(exc), 2) from None
     try:
         options = CarlaOptions(host=args.host, port=args.port, timeout=args.timeout)
     except ValueError as exc:
-        return _fail(str(exc), 2)
-    sc = load_drive_scenario(args.case)
-    if args.attentive is not None:
-        variants: list[tuple[str, bool | None]] = [("attentive" if args.attentive else "distracted", args.attentive)]
-    elif sc.variants:
-        variants = [(v, v == "attentive") for v in sc.variants]
-    else:
-        variants = [("", None)]
-    out = Path(args.out or f"out/{args.case}-carla")
-    done: list[tuple[str, dict[str, Any], Path]] = []
-    results = []
-    for tag, att in variants:
+        raise CarlaCommandError(str(exc), 2) from None
+
+    def run_variant(sc: Any, attentive: bool | None, progress: Progress | None) -> Any:
         try:
-            result = _run_variant(carla, sc, options, args, att)
+            return _run_variant(carla, sc, options, args, attentive, progress)
         except CarlaUnavailable as exc:
-            return _fail(str(exc), 2)
+            raise CarlaCommandError(str(exc), 2) from None
         except CarlaError as exc:
-            return _fail(f"CARLA: {exc} (settings restored, spawned actors destroyed)", 1)
+            raise CarlaCommandError(f"CARLA: {exc} (settings restored, spawned actors destroyed)", 1) from None
         except KeyboardInterrupt:
-            return _fail("interrupted; CARLA settings restored and spawned actors destroyed", 130)
-        where = out / tag if len(variants) > 1 else out
-        where.mkdir(parents=True, exist_ok=True)
-        from trustnav.viz.drive_plots import write_drive_outputs
+            raise CarlaCommandError("interrupted; CARLA settings restored and spawned actors destroyed", 130) from None
 
-        metrics = result.metrics()
-        write_drive_outputs(result, where, video=not args.no_video)
-        (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        done.append((tag or args.case, metrics, where))
-        results.append(result)
-    if len(results) > 1:
-        from trustnav.viz.drive_plots import plot_distance, plot_top_view
-
-        plot_distance(results, out / "distance.png")
-        plot_top_view(results, out / "top_view.png", title=f"{sc.title} [CARLA, {args.sensing} sensing]")
-        (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
-    print(f"drive {args.case} on CARLA at {options.address} ({args.sensing} sensing): wrote {out}/")
-    for tag, m, where in done:
-        ttg = "not reached" if m["time_to_goal"] is None else f"{m['time_to_goal']:.1f} s"
-        print(f"  {tag}: goal {ttg}  margin violations {m['margin_violations']}  relaxed steps "
-              f"{m['relaxed_steps']}  fallback steps {m['fallback_steps']}  -> {where}")  # fmt: skip
-        for p in m["pedestrians"]:
-            print(f"      {p['name']:<11} min distance {p['min_distance']:.2f} m  final trust "
-                  f"{p['final_trust']:.2f}  frames seen {p['frames_seen']}")  # fmt: skip
-    return 0
+    return options.address, run_variant
 
 
-def _run_variant(carla: Any, sc: Any, options: CarlaOptions, args: argparse.Namespace, attentive: bool | None) -> Any:
-    from tqdm import tqdm
-
+def _run_variant(
+    carla: Any, sc: Any, options: CarlaOptions, args: argparse.Namespace, attentive: bool | None,
+    progress: Progress | None,
+) -> Any:  # fmt: skip
     from trustnav.carla_bridge.world import run_carla_drive_episode
 
     pipeline = _pipeline(sc, args.rate) if args.sensing == "render" else None
-    bars: list[Any] = []  # the progress bar, made once the session is open
 
     def report(session: Any) -> None:
         print(f"CARLA {session.server_version} at {options.address}, map {session.map_name}, "
               f"synchronous, {session.delta:g} s per tick", file=sys.stderr)  # fmt: skip
-
-    def progress(t: float, duration: float) -> None:
-        if not bars:
-            tag = {None: "", True: " attentive", False: " distracted"}[attentive]
-            bars.append(tqdm(total=duration, desc=f"{args.case}{tag} (CARLA, {args.sensing})", unit="s",
-                             bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]"))  # fmt: skip
-        bars[0].update(t - bars[0].n)
 
     try:
         return run_carla_drive_episode(
@@ -108,8 +74,6 @@ def _run_variant(carla: Any, sc: Any, options: CarlaOptions, args: argparse.Name
             on_session=report,
         )  # fmt: skip
     finally:
-        for bar in bars:
-            bar.close()
         if pipeline is not None and hasattr(pipeline.backend, "close"):
             pipeline.backend.close()
 
@@ -123,8 +87,3 @@ def _pipeline(sc: Any, rate: float | None) -> Any:
 
     fps = float(rate or sc.camera.rate)
     return PerceptionPipeline(MediaPipePoseBackend(video=fps >= 5.0), PersonTracker(fps=fps), looking_model())
-
-
-def _fail(message: str, code: int) -> int:
-    print(f"trustnav: error: {message}", file=sys.stderr)
-    return code

@@ -8,8 +8,10 @@ tick per control period. What the camera sees goes through the physical frame
 (:func:`carla_to_physical`), where trustnav's camera model and pedestrian bodies (placed at the
 walkers, with their yaws) project as CARLA's camera does: keypoint sensing projects those bodies,
 render sensing runs perception on CARLA's image and associates its tracks with the walkers through
-the bodies' boxes. :func:`run_carla_drive_episode` is :func:`trustnav.sim.driving.episode.drive`
-(the same MPC, trust memory and metrics as ``trustnav drive``) on such a world.
+the bodies' boxes. :func:`run_carla_drive_episode` puts it under a
+:class:`~trustnav.sim.driving.episode.DriveSimulation`, the episode engine's world of every drive
+(:mod:`trustnav.sim.engine`), and runs :func:`trustnav.sim.driving.episode.drive` on it: the same
+runner, MPC, trust memory, record and metrics as ``trustnav drive``.
 
 No latency is added here (trustnav's own world delays each command 100 ms): CARLA's vehicle has
 its own actuation dynamics; the controller still plans from the state ``control.latency`` ahead.

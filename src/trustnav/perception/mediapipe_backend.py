@@ -19,11 +19,13 @@ next from the region of its own landmarks, as MediaPipe does, while the detector
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import queue
 import time
 import warnings
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -35,7 +37,16 @@ from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confiden
 from trustnav.perception.frames import quiet_stderr
 from trustnav.perception.types import Person, box_iou, check_frame
 
-__all__ = ["BLAZEPOSE_TO_COCO", "MEDIAPIPE_VERSION", "MediaPipeConfig", "MediaPipePoseBackend", "load_mediapipe"]
+__all__ = [
+    "BLAZEPOSE_TO_COCO",
+    "MEDIAPIPE_VERSION",
+    "QUIET_ENV",
+    "MediaPipeConfig",
+    "MediaPipePoseBackend",
+    "load_mediapipe",
+    "protobuf_warning_ignored",
+    "quiet_environment",
+]
 
 MEDIAPIPE_VERSION = "0.10.14"
 
@@ -77,14 +88,48 @@ node {
 """
 
 
-def load_mediapipe() -> Any:
-    """Import mediapipe (quietly) and check its version; ImportError with the install command if absent."""
-    os.environ.setdefault("GLOG_minloglevel", "2")
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
-    # mediapipe 0.10.14 calls a protobuf API that warns on every frame; silence just that warning
-    warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
+#: Log levels that quieten MediaPipe's glog and TFLite start-up chatter (set only while they start).
+QUIET_ENV = {"GLOG_minloglevel": "2", "TF_CPP_MIN_LOG_LEVEL": "2"}
+
+
+@contextlib.contextmanager
+def quiet_environment() -> Iterator[None]:
+    """:data:`QUIET_ENV` in ``os.environ`` (where not set already) for the block only, then restored.
+
+    MediaPipe's libraries read these levels when they load and start their first graph, which is
+    when trustnav enters this block (:func:`load_mediapipe`, a backend's construction); the process
+    environment is never changed beyond it, and nothing happens at import of this module.
+    """
+    saved = {k: os.environ.get(k) for k in QUIET_ENV}
+    for k, v in QUIET_ENV.items():
+        os.environ.setdefault(k, v)
     try:
-        with warnings.catch_warnings():
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@contextlib.contextmanager
+def protobuf_warning_ignored() -> Iterator[None]:
+    """Ignore, for the block only, the warning that mediapipe 0.10.14's protobuf call raises on every
+    frame ("SymbolDatabase.GetPrototype"); the warnings filters are restored on exit. Like every
+    ``warnings.catch_warnings``, the scope is the process's, for as long as the block runs."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
+        yield
+
+
+def load_mediapipe() -> Any:
+    """Import mediapipe (quietly) and check its version; ImportError with the install command if absent.
+
+    Called on first use of the backend, never at import; it leaves ``os.environ`` and the warnings
+    filters as it found them (see :func:`quiet_environment`)."""
+    try:
+        with quiet_environment(), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             import mediapipe
             from mediapipe.python import solution_base  # noqa: F401
@@ -201,7 +246,7 @@ class _Graphs:
             return solution_base.SolutionBase(graph_config=config)
 
         self.rect = rect_pb2.NormalizedRect
-        with quiet_stderr():  # MediaPipe/TFLite start-up chatter
+        with quiet_stderr(), quiet_environment(), protobuf_warning_ignored():  # start-up chatter
             self.detector = graph(_DETECTOR_GRAPH)
             self.landmarker = graph(_LANDMARK_GRAPH)
             blank = np.zeros((64, 64, 3), dtype=np.uint8)
@@ -319,9 +364,10 @@ class MediaPipePoseBackend:
             finally:
                 self._graphs.put(g)
 
-        if len(items) <= 1 or self.config.workers == 1:
-            return [task(i) for i in items]
-        return list(self._executor.map(task, items))
+        with protobuf_warning_ignored():  # the graphs run only inside this block
+            if len(items) <= 1 or self.config.workers == 1:
+                return [task(i) for i in items]
+            return list(self._executor.map(task, items))
 
     def detect(self, frame: NDArray[np.uint8], windows: list[tuple[int, int, int, int]] | None = None) -> list:
         """Person regions [cx, cy, side, rotation, face x, face y, face size] (pixels; face NaN for a

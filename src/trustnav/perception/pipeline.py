@@ -1,41 +1,51 @@
 """Frame -> tracked people with trait confidences -> `trustnav.trust` observations and trust.
 
-:class:`PerceptionPipeline` runs one frame: pose backend, tracker, eye contact (LOOKING on the
-17 keypoints and their occlusion-aware confidences) and smartphone use; :meth:`observations` turns
-the result into :class:`~trustnav.trust.estimator.Observation` s stamped with the frame's time, so the
-trust estimator updates a track when, and only when, that person is seen. :func:`estimate` runs a
-whole sequence, one bad frame never stopping it.
+:class:`PerceptionPipeline` runs one frame: pose backend, tracker and the trait cues, a list of
+cue extractors (:mod:`~trustnav.perception.cues`; by default eye contact, LOOKING on the 17
+keypoints and their occlusion-aware confidences, and smartphone use); :meth:`observations` turns
+the result into :class:`~trustnav.trust.observation.Observation` s stamped with the frame's time,
+so the trust estimator updates a track when, and only when, that person is seen. :func:`estimate`
+runs a whole sequence, one bad frame never stopping it.
 """
 
 from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from numbers import Real
+from types import MappingProxyType
 
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.perception.cues import CueExtractor, EyeContactCue, PhoneUseCue, check_cues, default_cues, run_cue
 from trustnav.perception.frames import FrameItem
-from trustnav.perception.looking import LookingModel, normalise_keypoints
-from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier
+from trustnav.perception.looking import LookingModel
+from trustnav.perception.phone import PhoneClassifier
 from trustnav.perception.tracking import PersonTracker
 from trustnav.perception.types import Person, PoseBackend, check_frame
-from trustnav.trust.estimator import Observation, TrustEstimator
+from trustnav.trust.estimator import TrustEstimator
+from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 
 __all__ = ["FrameResult", "PerceptionPipeline", "TrackedPerson", "estimate"]
 
 
 @dataclass(frozen=True)
 class TrackedPerson:
-    """A person of one frame with its track ID and trait confidences (C_eye, C_sm)."""
+    """A person of one frame with its track ID and trait confidences: C_eye, C_sm (NaN when no cue
+    extractor gives them) and ``cues``, every other cue's confidence by name."""
 
     track_id: int
     person: Person
     eye_contact: float
     phone: float
+    cues: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+
+def _given(c: float) -> float | None:
+    return None if math.isnan(c) else c
 
 
 @dataclass
@@ -53,25 +63,36 @@ class FrameResult:
 
 
 class PerceptionPipeline:
-    """Pose backend + tracker + eye-contact model + phone classifier, one frame at a time."""
+    """Pose backend + tracker + cue extractors (eye contact, phone use, ...), one frame at a time.
+
+    Either ``eye_model`` (and optionally ``phone``) for the paper's two cues, or ``cues``, the whole
+    list of extractors, e.g. ``[*default_cues(eye_model), HeadTurnedCue()]``.
+    """
 
     def __init__(
         self,
         backend: PoseBackend,
         tracker: PersonTracker,
-        eye_model: LookingModel,
+        eye_model: LookingModel | None = None,
         phone: PhoneClassifier | None = None,
+        *,
+        cues: Sequence[CueExtractor] | None = None,
     ) -> None:
         if not callable(backend):
             raise ValueError(f"backend must be a pose backend (callable on a frame), got {type(backend).__name__}")
         if not hasattr(tracker, "update"):
             raise ValueError(f"tracker must be a PersonTracker, got {type(tracker).__name__}")
-        if not hasattr(eye_model, "predict"):
-            raise ValueError(f"eye_model must be a LookingModel (with predict), got {type(eye_model).__name__}")
+        if cues is None:
+            if not hasattr(eye_model, "predict"):
+                raise ValueError(f"eye_model must be a LookingModel (with predict), got {type(eye_model).__name__}")
+            cues = default_cues(eye_model, phone)
+        elif eye_model is not None or phone is not None:
+            raise ValueError("pass either eye_model/phone (the paper's cues) or cues (every extractor), not both")
         self.backend = backend
         self.tracker = tracker
-        self.eye_model = eye_model
-        self.phone = phone or PoseGeometryPhoneClassifier()
+        self.cues = check_cues(cues)
+        self.eye_model = next((c.model for c in self.cues if isinstance(c, EyeContactCue)), None)
+        self.phone = next((c.classifier for c in self.cues if isinstance(c, PhoneUseCue)), None)
         self.last_timing: dict[str, float] = {}
 
     def __call__(self, frame: NDArray[np.uint8]) -> list[TrackedPerson]:
@@ -79,34 +100,34 @@ class PerceptionPipeline:
         t0 = _time.perf_counter()
         people = self.backend(frame)
         t1 = _time.perf_counter()
-        if people:
-            inputs = np.stack([normalise_keypoints(p.keypoints, p.confidences, frame.shape[1]) for p in people])
-            eye = self.eye_model.predict(inputs)
-            phone = [float(self.phone(frame, p)) for p in people]
-        else:
-            eye, phone = np.zeros(0), []
+        values = {c.name: run_cue(c, frame, people) for c in self.cues} if people else {}
         t2 = _time.perf_counter()
         ids = self.tracker.update(people)
         t3 = _time.perf_counter()
         self.last_timing = dict(getattr(self.backend, "last_timing", {}) or {"pose": t1 - t0})
         self.last_timing.update(traits=t2 - t1, tracking=t3 - t2)
+        nan = [math.nan] * len(people)
+        eye, phone = values.get(EYE_CONTACT, nan), values.get(SMARTPHONE, nan)
+        others = [name for name in values if name not in (EYE_CONTACT, SMARTPHONE)]
         return [
-            TrackedPerson(tid, p, float(e), ph)
-            for tid, p, e, ph in zip(ids, people, eye, phone, strict=True)
+            TrackedPerson(tid, p, eye[i], phone[i], MappingProxyType({n: values[n][i] for n in others}))
+            for i, (tid, p) in enumerate(zip(ids, people, strict=True))
             if tid >= 0
         ]
 
     @staticmethod
     def observations(people: Iterable[TrackedPerson], time: float) -> list[Observation]:
-        """One trust observation per tracked person (traits `smato_score`, `eye_score`, `pose_conf`)."""
+        """One trust observation per tracked person (cues of `smato_score`, `eye_score` and any
+        other trait; keypoints and box for `pose_conf`). A NaN cue is left out (missing)."""
         return [
             Observation(
                 track_id=tp.track_id,
                 time=time,
-                c_smartphone=tp.phone,
-                c_eye=tp.eye_contact,
+                c_smartphone=_given(tp.phone),
+                c_eye=_given(tp.eye_contact),
                 keypoints=tp.person.keypoints,
                 bbox=tp.person.bbox,
+                cues={n: c for n, c in tp.cues.items() if not math.isnan(c)},
             )
             for tp in people
         ]
@@ -132,6 +153,10 @@ def _record(name: str, tp: TrackedPerson, estimator: TrustEstimator, sequence: s
         "score": _num(st.score),
         "trust": _num(st.trust),
     }
+    # cues and traits beyond the paper's (only with a user's cue extractors or trait set)
+    rec.update({name: _num(c) for name, c in tp.cues.items()})
+    paper = (SMARTPHONE, EYE_CONTACT, "pose_fluctuation")
+    rec.update({f"{name}_trait": _num(v) for name, v in st.values.items() if name not in paper})
     if sequence is not None:
         rec["sequence"] = sequence
     return rec

@@ -15,24 +15,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import (
     BoundedProportionalReference,
     MpcConfig,
-    MpcController,
     SingleIntegrator,
     SolveStatus,
     VelocityTrackingCost,
 )
 from trustnav.control.barrier import TIMINGS
-from trustnav.control.solvers import make_solver
+from trustnav.sim.engine import SIMULATION_DEADLINE, EpisodeResult, Observation, Sample, make_mpc, run
 from trustnav.trust import GammaParams
 
 __all__ = [
     "SCENARIOS",
     "Episode",
     "PaperScenario",
+    "PaperWorld",
     "Pedestrian",
     "ScenarioResult",
     "episode_metrics",
@@ -154,7 +154,7 @@ class PaperScenario:
             timing=timing or self.timing,  # type: ignore[arg-type]
             # simulated time is not wall time: a long step deadline keeps an episode a pure
             # function of the scenario, whatever the machine's load
-            deadline=10.0,
+            deadline=SIMULATION_DEADLINE,
         )
 
     def cost(self) -> VelocityTrackingCost:
@@ -220,7 +220,8 @@ def load_scenario(name_or_path: str | Path) -> PaperScenario:
 
 @dataclass
 class Episode:
-    """A closed-loop run: ego path (T+1, 2), pedestrian paths (T+1, N_p, 2), per-step solver data."""
+    """A closed-loop run: ego path (T+1, 2), pedestrian paths (T+1, N_p, 2), per-step solver data;
+    ``result``: the engine's :class:`~trustnav.sim.engine.EpisodeResult` it was read from."""
 
     scenario: str
     horizon: int
@@ -233,11 +234,57 @@ class Episode:
     solve_times: NDArray[np.float64]
     reached_goal: bool
     timing: str
+    result: EpisodeResult | None = None
 
     @property
     def distances(self) -> NDArray[np.float64]:
         """Ego-pedestrian distance per step (T+1, N_p)."""
         return np.linalg.norm(self.ego[:, None, :] - self.pedestrians, axis=2)
+
+
+class PaperWorld:
+    """A paper scenario as an engine :class:`~trustnav.sim.engine.World`: the single integrator
+    ego applies each input exactly for ``dt`` (no latency), pedestrians move at constant velocity
+    and their trusts are fixed; it ends at the goal (``goal_tolerance``) or after ``max_steps``."""
+
+    name = "paper"
+
+    def __init__(self, scenario: PaperScenario, trusts: ArrayLike | None = None) -> None:
+        self.scenario = scenario
+        self.period = scenario.dt
+        self.model = SingleIntegrator(u_max=scenario.u_max)
+        tr = [p.trust for p in scenario.pedestrians] if trusts is None else trusts
+        self.trusts = np.array(tr, dtype=float)
+        self.velocities = np.array([p.velocity for p in scenario.pedestrians], dtype=float)
+        self.goal = np.array(scenario.goal, dtype=float)
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        """Back to the start (the scenario has no randomness; ``seed`` is ignored)."""
+        self.step_index = 0
+        self.ego = np.array(self.scenario.ego_start, dtype=float)
+        self.positions = np.array([p.position for p in self.scenario.pedestrians], dtype=float)
+
+    @property
+    def time(self) -> float:
+        return self.step_index * self.period
+
+    def observe(self) -> Observation:
+        return Observation(self.time, self.ego.copy(), self.positions.copy(), self.velocities.copy(),
+                           self.trusts.copy())  # fmt: skip
+
+    def advance(self, command: ArrayLike, duration: float) -> None:
+        self.ego = self.model.step(self.ego, np.asarray(command, dtype=float), duration)
+        self.positions = self.positions + self.velocities * duration
+        self.step_index += 1
+
+    def done(self) -> str | None:
+        if self.step_index > 0 and np.linalg.norm(self.ego - self.goal) <= self.scenario.goal_tolerance:
+            return "goal"
+        return "max_steps" if self.step_index >= self.scenario.max_steps else None
+
+    def record(self) -> Sample:
+        return Sample(self.time, self.ego.copy(), self.positions.copy(), self.trusts.copy())
 
 
 def run_episode(
@@ -247,44 +294,25 @@ def run_episode(
     solver: str = "sqp",
     timing: str | None = None,
 ) -> Episode:
-    """Closed loop: each step solve `proposed`, apply u(t) exactly (no latency), move pedestrians."""
+    """Closed loop on the engine: each step solve `proposed`, apply u(t) exactly (no latency), move
+    pedestrians (:class:`PaperWorld` with the scenario's MPC)."""
     cfg = scenario.config(horizon, timing)
-    model = SingleIntegrator(u_max=scenario.u_max)
-    slv = make_solver(solver)
-    ctl = MpcController(model, scenario.cost(), cfg, slv)
-    tr = np.array([p.trust for p in scenario.pedestrians] if trusts is None else trusts, dtype=float)
-    peds = np.array([p.position for p in scenario.pedestrians], dtype=float)
-    vels = np.array([p.velocity for p in scenario.pedestrians], dtype=float)
-    goal = np.array(scenario.goal)
-    x = np.array(scenario.ego_start, dtype=float)
-    ego, ped_path, statuses, times = [x], [peds], [], []
-    fallbacks = slack = 0
-    reached = False
-    for _ in range(scenario.max_steps):
-        sol = ctl.step(x, peds, vels, tr)
-        statuses.append(sol.status)
-        times.append(sol.solve_time)
-        fallbacks += sol.fallback
-        slack += sol.slack_used
-        x = model.step(x, sol.control, cfg.dt)
-        peds = peds + vels * cfg.dt
-        ego.append(x)
-        ped_path.append(peds)
-        if np.linalg.norm(x - goal) <= scenario.goal_tolerance:
-            reached = True
-            break
+    policy = make_mpc(SingleIntegrator(u_max=scenario.u_max), scenario.cost(), cfg, solver)
+    world = PaperWorld(scenario, trusts)
+    res = run(world, policy)
     return Episode(
         scenario=scenario.name,
         horizon=cfg.horizon,
-        trusts=tr,
-        ego=np.array(ego),
-        pedestrians=np.array(ped_path),
-        statuses=statuses,
-        fallbacks=fallbacks,
-        slack_steps=slack,
-        solve_times=np.array(times),
-        reached_goal=reached,
+        trusts=world.trusts,
+        ego=res.ego,
+        pedestrians=res.pedestrians,
+        statuses=[SolveStatus(s) for s in res.statuses],
+        fallbacks=res.count("fallback"),
+        slack_steps=res.count("relaxed"),
+        solve_times=res.solve_times,
+        reached_goal=res.reached_goal,
         timing=cfg.timing,
+        result=res,
     )
 
 

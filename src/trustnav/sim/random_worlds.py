@@ -11,20 +11,20 @@ Two families, each a pure function of (spec, seed):
   4-10 m/s, 1-6 pedestrians near the lane (static on the kerb, on the lane edge, or crossing),
   and in a third of the episodes a pedestrian that steps onto the lane ahead part-way through.
 
-:func:`run_world` runs one episode with :class:`~trustnav.control.MpcController` and returns a
-record; :func:`hard_feasible_exists` is the independent check used for relaxed steps.
+:class:`RandomEpisodeWorld` is a sampled world on the episode engine (:mod:`trustnav.sim.engine`);
+:func:`run_world` runs one episode with the world's MPC and returns a record;
+:func:`hard_feasible_exists` is the independent check used for relaxed steps.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize
 
 from trustnav.control import (
@@ -32,15 +32,23 @@ from trustnav.control import (
     KinematicBicycle,
     LaneTrackingCost,
     MpcConfig,
-    MpcController,
     MpcProblem,
     SingleIntegrator,
-    SolveStatus,
     VelocityTrackingCost,
 )
+from trustnav.sim.engine import Decision, EpisodeResult, MpcPolicy, Observation, Sample, make_mpc, run
 from trustnav.trust import PAPER_GAMMA_CARLA, PAPER_GAMMA_NUMERICAL
 
-__all__ = ["RandomWorld", "RandomWorldSpec", "hard_feasible_exists", "run_world", "sample_world"]
+__all__ = [
+    "RandomEpisodeWorld",
+    "RandomWorld",
+    "RandomWorldSpec",
+    "hard_feasible_exists",
+    "run_world",
+    "run_world_result",
+    "sample_world",
+    "world_record",
+]
 
 Family = Literal["single_integrator", "bicycle"]
 
@@ -173,15 +181,18 @@ def sample_world(spec: RandomWorldSpec, seed: int) -> RandomWorld:
     return _si_world(spec, seed, rng) if spec.family == "single_integrator" else _bicycle_world(spec, seed, rng)
 
 
-def _controller(world: RandomWorld) -> tuple[MpcController, Any]:
+def _model(world: RandomWorld) -> Any:
+    return SingleIntegrator() if world.family == "single_integrator" else KinematicBicycle()
+
+
+def _policy(world: RandomWorld) -> MpcPolicy:
+    """The world's MPC (its ``config``: N_h, dt, R, gamma, latency, deadline)."""
     if world.family == "single_integrator":
-        model = SingleIntegrator()
         cost = VelocityTrackingCost(goal=tuple(world.goal), reference=BoundedProportionalReference(1.5, world.v_max))
     else:
-        model = KinematicBicycle()
         cost = LaneTrackingCost(start=(0.0, 0.0), goal=tuple(world.goal),
                                 reference=BoundedProportionalReference(0.5, world.v_max))  # fmt: skip
-    return MpcController(model, cost, world.config), model
+    return make_mpc(_model(world), cost, world.config)
 
 
 def hard_feasible_exists(problem: MpcProblem, plans: list[NDArray[np.float64]], seed: int = 0) -> bool:
@@ -256,94 +267,132 @@ def _path_min_distance(
     return closest.min(axis=0)
 
 
-def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: bool = False) -> dict[str, Any]:
-    """Closed loop on one world; the record a reliability study needs.
+class RandomEpisodeWorld:
+    """A :class:`RandomWorld` as an engine :class:`~trustnav.sim.engine.World`.
 
     Pedestrians move at constant velocity; a pedestrian is given to the controller from its
-    appearance step on (a 'sudden' one appears at the distance in its kind ahead of the car).
-    With ``check_relaxed`` every step whose plan violates a CBF row is re-checked with
-    :func:`hard_feasible_exists` on the same stage. ``ped_min_distance`` / ``ped_trust``: each
-    pedestrian's closest approach (None if never known to the controller) and trust.
-    ``min_distance`` / ``breach`` are taken at the control steps, where the discrete-time CBF
-    (`cbf_discrete`) guarantees h >= 0; ``min_distance_continuous`` / ``breach_continuous`` along
-    the plant's path between them.
+    appearance step on (a 'sudden' one appears at the distance in its kind ahead of the car). The
+    plant (:func:`_plant`) executes the previous input for the first ``latency`` seconds of each
+    period. Besides the instants it measures the closest approaches the record needs: at the
+    control steps (each pedestrian over the steps it is known) and along the plant's path between
+    them (``min_distance_continuous``).
     """
-    ctl, model = _controller(world)
-    cfg = world.config
-    x = world.start.astype(float).copy()
-    peds = world.pedestrians.copy()
-    r = cfg.safety_radius
-    min_dist = min_cont = math.inf
-    ped_min = np.full(len(peds), math.inf)  # per pedestrian, over the steps it is known
-    times, cpu, statuses = [], [], {}
-    relaxed = fallback = recovered = deadline = 0
-    relaxed_feasible = relaxed_checked = 0
-    reached = False
-    steps = 0
-    applied = np.zeros(model.nu)  # the input being executed when a new one is issued
-    for t in range(world.max_steps):
-        for j in np.flatnonzero(world.appear == t):
-            if t > 0 and world.kinds[j].startswith("sudden@"):
-                peds[j, 0] = x[0] + float(world.kinds[j].split("@")[1])
-        known = world.appear <= t
-        t0, c0 = time.perf_counter(), time.thread_time()
-        sol = ctl.step(x, peds[known], world.velocities[known], world.trusts[known])
-        times.append(time.perf_counter() - t0)
-        cpu.append(time.thread_time() - c0)
-        statuses[sol.status.value] = statuses.get(sol.status.value, 0) + 1
-        relaxed += sol.slack_used
-        fallback += sol.fallback
-        recovered += sol.recovered
-        deadline += sol.deadline_hit
-        if check_relaxed and sol.slack_used:
-            relaxed_checked += 1
-            relaxed_feasible += hard_feasible_exists(ctl.problem, [sol.inputs], seed=world.seed * 1000 + t)
-        x, path, path_t = _plant(model, x, applied, sol.control, cfg)
-        applied = sol.control
+
+    def __init__(self, world: RandomWorld) -> None:
+        self.spec = world
+        self.name = f"random_{world.family}"
+        self.period = world.config.dt
+        self.model = _model(world)
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        """Back to the start (the world was sampled from its seed; ``seed`` is ignored)."""
+        w = self.spec
+        self.step_index = 0
+        self.ego = w.start.astype(float).copy()
+        self.positions = w.pedestrians.copy()
+        self.applied = np.zeros(self.model.nu)  # the input being executed when a new one is issued
+        self.min_continuous = math.inf
+        self.ped_min = np.full(len(w.pedestrians), math.inf)  # per pedestrian, over the steps it is known
+
+    def known(self) -> NDArray[np.bool_]:
+        return self.spec.appear <= self.step_index
+
+    def observe(self) -> Observation:
+        k = self.known()
+        w = self.spec
+        return Observation(self.step_index * self.period, self.ego.copy(), self.positions[k],
+                           w.velocities[k], w.trusts[k])  # fmt: skip
+
+    def advance(self, command: ArrayLike, duration: float) -> None:
+        w, cfg = self.spec, self.spec.config
+        if abs(duration - cfg.dt) > 1e-12:
+            raise ValueError(f"a random world advances by its control period {cfg.dt}, got {duration}")
+        known = self.known()
+        u = np.asarray(command, dtype=float)
+        self.ego, path, path_t = _plant(self.model, self.ego, self.applied, u, cfg)
+        self.applied = u
         if known.any():
-            min_cont = min(
-                min_cont, float(_path_min_distance(path, path_t, peds[known], world.velocities[known]).min())
-            )
-        peds = peds + world.velocities * cfg.dt
-        steps = t + 1
+            d_path = _path_min_distance(path, path_t, self.positions[known], w.velocities[known])
+            self.min_continuous = min(self.min_continuous, float(d_path.min()))
+        self.positions = self.positions + w.velocities * cfg.dt
         if known.any():
-            d = np.linalg.norm(peds[known] - x[:2], axis=1)
-            min_dist = min(min_dist, float(d.min()))
-            ped_min[known] = np.minimum(ped_min[known], d)
-        if np.linalg.norm(x[:2] - world.goal) <= (0.25 if world.family == "single_integrator" else 1.0):
-            reached = True
-            break
-    st = np.array(times) * 1e3  # wall clock (what a real-time loop sees, preemption included)
-    ct = np.array(cpu) * 1e3  # CPU time of the stepping thread
+            d = np.linalg.norm(self.positions[known] - self.ego[:2], axis=1)
+            self.ped_min[known] = np.minimum(self.ped_min[known], d)
+        self.step_index += 1
+        for j in np.flatnonzero(w.appear == self.step_index):
+            if w.kinds[j].startswith("sudden@"):
+                self.positions[j, 0] = self.ego[0] + float(w.kinds[j].split("@")[1])
+
+    def done(self) -> str | None:
+        tol = 0.25 if self.spec.family == "single_integrator" else 1.0
+        if self.step_index > 0 and np.linalg.norm(self.ego[:2] - self.spec.goal) <= tol:
+            return "goal"
+        return "max_steps" if self.step_index >= self.spec.max_steps else None
+
+    def record(self) -> Sample:
+        return Sample(self.step_index * self.period, self.ego.copy(), self.positions.copy(), self.spec.trusts.copy())
+
+    def outcome(self) -> dict[str, Any]:
+        return {
+            "ped_min_distance": [float(v) if math.isfinite(v) else None for v in self.ped_min],
+            "ped_trust": [float(v) for v in self.spec.trusts],
+            "min_distance_continuous": self.min_continuous,
+        }
+
+
+def run_world_result(world: RandomWorld, check_relaxed: bool = False) -> EpisodeResult:
+    """The episode of ``world`` on the engine; with ``check_relaxed`` every step whose plan
+    violates a CBF row is re-checked with :func:`hard_feasible_exists` on the same stage."""
+    policy = _policy(world)
+    checks: dict[int, bool] = {}
+
+    def check(k: int, _obs: Observation, decision: Decision) -> None:
+        if check_relaxed and decision.stats.relaxed and policy.last_solution is not None:
+            checks[k] = hard_feasible_exists(policy.controller.problem, [policy.last_solution.inputs],
+                                             seed=world.seed * 1000 + k)  # fmt: skip
+
+    res = run(RandomEpisodeWorld(world), policy, on_step=check)
+    res.stats = [replace(s, relaxed_feasible=checks.get(k)) for k, s in enumerate(res.stats)]
+    return res
+
+
+def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: bool = False) -> dict[str, Any]:
+    """Closed loop on one world (:class:`RandomEpisodeWorld` on the engine); the record a
+    reliability study needs: the engine's record (:meth:`~trustnav.sim.engine.EpisodeResult.to_record`)
+    and the world's own fields.
+
+    With ``check_relaxed`` every relaxed step is re-checked with :func:`hard_feasible_exists`.
+    ``ped_min_distance`` / ``ped_trust``: each pedestrian's closest approach (None if never known
+    to the controller) and trust. ``min_distance`` / ``breach`` are taken at the control steps,
+    where the discrete-time CBF (`cbf_discrete`) guarantees h >= 0; ``min_distance_continuous`` /
+    ``breach_continuous`` along the plant's path between them.
+    """
+    res = run_world_result(world, check_relaxed)
+    return world_record(world, res, keep_step_times)
+
+
+def world_record(world: RandomWorld, res: EpisodeResult, keep_step_times: bool = False) -> dict[str, Any]:
+    """The reliability record of a random world's episode (see :func:`run_world`)."""
+    r = world.config.safety_radius
+    st = res.step_wall * 1e3  # wall clock (what a real-time loop sees, preemption included)
+    ct = res.step_cpu * 1e3  # CPU time of the stepping thread
+    statuses: dict[str, int] = {}
+    for s in res.statuses:
+        statuses[s] = statuses.get(s, 0) + 1
+    min_cont = float(res.outcome["min_distance_continuous"])
     return {
         "family": world.family,
         "seed": world.seed,
-        "n_p": len(world.pedestrians),
-        "horizon": cfg.horizon,
-        "v_max": world.v_max,
         "kinds": list(world.kinds),
-        "steps": steps,
-        "reached_goal": reached,
-        "min_distance": min_dist,
-        "breach": bool(min_dist < r - 1e-6),
+        "v_max": world.v_max,
+        **res.to_record(),
         "min_distance_continuous": min_cont,
         "breach_continuous": bool(min_cont < r - 1e-6),
-        "relaxed_steps": int(relaxed),
-        "relaxed_checked": int(relaxed_checked),
-        "relaxed_but_feasible": int(relaxed_feasible),
-        "fallback_steps": int(fallback),
-        "recovered_steps": int(recovered),
-        "deadline_steps": int(deadline),
-        "failed_steps": int(statuses.get(SolveStatus.FAILED.value, 0)),
         "statuses": statuses,
         "step_ms": st.tolist() if keep_step_times else None,
-        "step_ms_median": float(np.median(st)),
-        "step_ms_p99": float(np.percentile(st, 99)),
-        "step_ms_max": float(st.max()),
         "step_ms_sum": float(st.sum()),
         "step_cpu_ms": ct.tolist() if keep_step_times else None,
         "step_cpu_ms_max": float(ct.max()),
-        "final_speed": float(x[3]) if world.family == "bicycle" else None,
-        "ped_min_distance": [float(v) if math.isfinite(v) else None for v in ped_min],  # None: never known
-        "ped_trust": [float(v) for v in world.trusts],
+        "final_speed": float(res.ego[-1, 3]) if world.family == "bicycle" else None,
     }

@@ -1,9 +1,11 @@
 """Pure mathematics of the paper's trust estimation (Section II) and trust-adaptive gamma (`weight`).
 
-Imports nothing else of trustnav.
+Traits are parts (:mod:`trustnav.trust.parts`): the estimator takes any :class:`TraitSet`; the
+paper's three (:data:`PAPER_TRAITS`) are the default. Imports nothing else of trustnav.
 """
 
-from trustnav.trust.estimator import Observation, TrackState, TrustEstimator
+from trustnav.trust.estimator import TrackState, TrustEstimator
+from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 from trustnav.trust.params import (
     MOVING_AVERAGE_TRUST,
     PAPER_GAMMA_CARLA,
@@ -11,6 +13,17 @@ from trustnav.trust.params import (
     PAPER_TRUST,
     GammaParams,
     TrustParams,
+)
+from trustnav.trust.parts import (
+    PAPER_TRAITS,
+    CueTrait,
+    EyeContact,
+    PoseFluctuation,
+    SmartphoneUse,
+    Trait,
+    TraitSet,
+    TraitStep,
+    paper_traits,
 )
 from trustnav.trust.traits import (
     N_KEYPOINTS,
@@ -30,20 +43,31 @@ from trustnav.trust.traits import (
 )
 
 __all__ = [
+    "EYE_CONTACT",
     "MOVING_AVERAGE_TRUST",
     "N_KEYPOINTS",
     "PAPER_GAMMA_CARLA",
     "PAPER_GAMMA_NUMERICAL",
+    "PAPER_TRAITS",
     "PAPER_TRUST",
+    "SMARTPHONE",
+    "CueTrait",
+    "EyeContact",
     "GammaParams",
     "Observation",
+    "PoseFluctuation",
+    "SmartphoneUse",
     "TrackState",
+    "Trait",
+    "TraitSet",
+    "TraitStep",
     "TrustEstimator",
     "TrustParams",
     "eye_trait_init",
     "eye_trait_update",
     "fluctuation_confidence",
     "gamma",
+    "paper_traits",
     "pose_trait_init",
     "pose_trait_update",
     "relative_pose",

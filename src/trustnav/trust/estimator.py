@@ -3,15 +3,20 @@
 The estimator knows nothing of images or of the controller: it takes per-track observations
 (trait confidences and, for pose fluctuation, keypoints with their box) stamped with a time in
 seconds, so that perception and control can run at different rates (footnote of `proposed`).
+The traits are parts (:mod:`trustnav.trust.parts`): any :class:`~trustnav.trust.parts.TraitSet`
+with its weights; the paper's three (:data:`~trustnav.trust.parts.PAPER_TRAITS`) by default.
 
 Documented choices where the paper is silent:
 
 * A track is created on its first observation with the "(0)" formulas of `smato_score`,
-  `eye_score`, `pose_score` and `agg_trust`; every later observation applies the recursive update.
+  `eye_score`, `pose_score` and `agg_trust` (each trait's ``initial``); every later observation
+  applies the recursive update (each trait's ``update``).
 * A trait confidence missing from an observation (e.g. no face visible) leaves that trait as it
-  was. A trait never observed yet is "not available": `lin_comb` then shares its weight out over
-  the available traits (see :func:`trustnav.trust.traits.total_score`). Pose fluctuation is always
-  available (its initial value nu03 does not need an observation).
+  was. A trait never observed yet is "not available" (NaN): `lin_comb` then shares its weight out
+  over the available traits (see :meth:`trustnav.trust.parts.TraitSet.score`). Pose fluctuation
+  is always available (its initial value nu03 does not need an observation).
+* With a trait set other than the paper's, ``params`` still gives `agg_trust` (alpha, beta,
+  beta0); its rho and nu constants belong to the paper's traits and are then not used.
 * Pose fluctuation compares with the previous observation of the same track, however long ago.
 * A track not observed for more than ``keep_time`` seconds is forgotten; if it comes back it
   starts again from the "(0)" formulas.
@@ -20,89 +25,111 @@ Documented choices where the paper is silent:
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass, field
-from numbers import Integral
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, replace
+from numbers import Real
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.trust import traits as tr
+from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 from trustnav.trust.params import PAPER_TRUST, TrustParams, as_number
+from trustnav.trust.parts import Trait, TraitSet, TraitStep, paper_traits
 
 __all__ = ["Observation", "TrackState", "TrustEstimator"]
 
-
-@dataclass(frozen=True)
-class Observation:
-    """What perception saw of one track at one instant. Any trait input may be missing (None)."""
-
-    track_id: int
-    time: float
-    c_smartphone: float | None = None
-    c_eye: float | None = None
-    keypoints: NDArray[np.float64] | None = None
-    bbox: NDArray[np.float64] | None = None
-
-    def __post_init__(self) -> None:
-        if isinstance(self.track_id, bool) or not isinstance(self.track_id, Integral):
-            raise ValueError(f"observation track_id must be an integer, got {self.track_id!r}")
-        object.__setattr__(self, "track_id", int(self.track_id))
-        t = as_number("observation time", self.time)
-        if not math.isfinite(t):
-            raise ValueError(f"observation time must be finite seconds, got {self.time!r}")
-        object.__setattr__(self, "time", t)
-        for name in ("c_smartphone", "c_eye"):
-            c = getattr(self, name)
-            if c is not None:
-                c = as_number(name, c)
-                if not 0.0 <= c <= 1.0:
-                    raise ValueError(f"{name} must be a confidence in [0, 1] (or None), got {getattr(self, name)!r}")
-                object.__setattr__(self, name, c)
-        if (self.keypoints is None) != (self.bbox is None):
-            raise ValueError("keypoints and bbox must be given together (pose fluctuation needs both)")
-        if self.keypoints is not None:
-            kp = np.asarray(self.keypoints, dtype=float)
-            box = np.asarray(self.bbox, dtype=float)
-            if kp.ndim != 2 or kp.shape[1] != 2 or box.shape != (4,):
-                raise ValueError(
-                    f"keypoints must be (K, 2) and bbox [x1, y1, x2, y2], got shapes {kp.shape} and {box.shape}"
-                )
-            object.__setattr__(self, "keypoints", kp)
-            object.__setattr__(self, "bbox", box)
+_POSE = "pose_fluctuation"
 
 
 @dataclass
 class TrackState:
-    """Memory of one tracked pedestrian (the 'Memory' block of Fig. `combined`)."""
+    """Memory of one tracked pedestrian (the 'Memory' block of Fig. `combined`).
+
+    steps: each trait's latest :class:`~trustnav.trust.parts.TraitStep`, by name, in the order of
+    the estimator's traits; score: S (`lin_comb`); trust: tau (`agg_trust`). The paper's traits
+    read as ``smartphone`` (s_1), ``eye`` (s_2), ``pose`` (s_3) and ``fluctuation`` (last C_fluc);
+    NaN for a trait not available (or not in the set).
+    """
 
     track_id: int
-    smartphone: float  # s_1, NaN until first observed
-    eye: float  # s_2, NaN until first observed
-    pose: float  # s_3
-    score: float  # S, `lin_comb`
-    trust: float  # tau, `agg_trust`
+    steps: dict[str, TraitStep]
+    score: float
+    trust: float
     first_seen: float
     last_seen: float
     observations: int = 1
-    fluctuation: float = math.nan  # last C_fluc
-    relative_pose: NDArray[np.float64] | None = field(default=None, repr=False)
+
+    def value(self, name: str) -> float:
+        """The trait ``name``'s value s_i (NaN if not available or not a trait of this estimator)."""
+        step = self.steps.get(name)
+        return math.nan if step is None else step.value
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Every trait's value by name."""
+        return {name: step.value for name, step in self.steps.items()}
 
     @property
     def traits(self) -> NDArray[np.float64]:
-        return np.array([self.smartphone, self.eye, self.pose])
+        """The trait values in the estimator's order ((smartphone, eye, pose) for the paper's)."""
+        return np.array([step.value for step in self.steps.values()])
+
+    @property
+    def smartphone(self) -> float:
+        return self.value(SMARTPHONE)
+
+    @property
+    def eye(self) -> float:
+        return self.value(EYE_CONTACT)
+
+    @property
+    def pose(self) -> float:
+        return self.value(_POSE)
+
+    @property
+    def fluctuation(self) -> float:
+        """Last C_fluc (`pose_conf`), NaN before the first comparison."""
+        step = self.steps.get(_POSE)
+        return math.nan if step is None else step.confidence
+
+    @property
+    def relative_pose(self) -> NDArray[np.float64] | None:
+        step = self.steps.get(_POSE)
+        return None if step is None else step.memory
+
+
+def _checked(trait: Trait, step: object, when: str) -> TraitStep:
+    if not isinstance(step, TraitStep):
+        raise ValueError(f"trait {trait.name!r}: {when} must return a TraitStep, got {type(step).__name__}")
+    v = step.value
+    if isinstance(v, bool) or not isinstance(v, Real) or not (math.isnan(v) or 0.0 <= v <= 1.0):
+        raise ValueError(f"trait {trait.name!r}: {when} gave {v!r}; a trait value must be a number in [0, 1] or NaN")
+    return step if type(v) is float else replace(step, value=float(v))
 
 
 class TrustEstimator:
-    """Aggregates per-track trust over time (`lin_comb`, `agg_trust`, trait updates)."""
+    """Aggregates per-track trust over time (`lin_comb`, `agg_trust`, trait updates).
 
-    def __init__(self, params: TrustParams = PAPER_TRUST, keep_time: float = 2.0) -> None:
+    params: `agg_trust` constants (and the paper's trait constants when ``traits`` is None);
+    keep_time: seconds after which an unseen track is forgotten; traits: the trait set (a
+    TraitSet or a sequence of Trait), by default the paper's three built from ``params``.
+    """
+
+    def __init__(
+        self,
+        params: TrustParams = PAPER_TRUST,
+        keep_time: float = 2.0,
+        *,
+        traits: TraitSet | Sequence[Trait] | None = None,
+    ) -> None:
         if not isinstance(params, TrustParams):
             raise ValueError(f"params must be a TrustParams (e.g. PAPER_TRUST), got {type(params).__name__}")
         if not as_number("keep_time", keep_time) >= 0:
             raise ValueError(f"keep_time must be >= 0 seconds, got {keep_time!r}")
         self.params = params
         self.keep_time = float(keep_time)
+        self.traits = paper_traits(params) if traits is None else TraitSet.of(traits)
         self._tracks: dict[int, TrackState] = {}
 
     @property
@@ -112,47 +139,31 @@ class TrustEstimator:
 
     def observe(self, obs: Observation) -> TrackState:
         """Apply one observation; returns the track's updated state."""
+        if not isinstance(obs, Observation):
+            raise ValueError(f"observe needs an Observation, got {type(obs).__name__}")
         p = self.params
-        rel = None if obs.keypoints is None else tr.relative_pose(obs.keypoints, obs.bbox)
         st = self._tracks.get(obs.track_id)
         if st is not None and obs.time < st.last_seen:
             raise ValueError(
                 f"observation of track {obs.track_id} at t={obs.time} is older than its last one ({st.last_seen})"
             )
         if st is None:
-            s1 = math.nan if obs.c_smartphone is None else float(tr.smartphone_trait_init(obs.c_smartphone, p))
-            s2 = math.nan if obs.c_eye is None else float(tr.eye_trait_init(obs.c_eye, p))
-            s3 = tr.pose_trait_init(p)
-            score = float(tr.total_score([s1, s2, s3], p))
+            steps = {t.name: _checked(t, t.initial(obs), "initial") for t in self.traits}
+            score = float(self.traits.score([s.value for s in steps.values()]))
             st = TrackState(
                 track_id=obs.track_id,
-                smartphone=s1,
-                eye=s2,
-                pose=s3,
+                steps=steps,
                 score=score,
                 trust=float(tr.trust_init(score, p)),
                 first_seen=obs.time,
                 last_seen=obs.time,
-                relative_pose=rel,
             )
             self._tracks[obs.track_id] = st
             return st
-        if obs.c_smartphone is not None:
-            st.smartphone = float(
-                tr.smartphone_trait_init(obs.c_smartphone, p)
-                if math.isnan(st.smartphone)
-                else tr.smartphone_trait_update(st.smartphone, obs.c_smartphone, p)
-            )
-        if obs.c_eye is not None:
-            st.eye = float(
-                tr.eye_trait_init(obs.c_eye, p) if math.isnan(st.eye) else tr.eye_trait_update(st.eye, obs.c_eye, p)
-            )
-        if rel is not None:
-            if st.relative_pose is not None and np.any(np.isfinite(rel - st.relative_pose).all(axis=1)):
-                st.fluctuation = tr.fluctuation_confidence(rel, st.relative_pose, p)
-                st.pose = float(tr.pose_trait_update(st.pose, st.fluctuation, p))
-            st.relative_pose = rel
-        st.score = float(tr.total_score(st.traits, p))
+        # every trait steps before anything is stored: a trait that fails leaves the track as it was
+        steps = {t.name: _checked(t, t.update(st.steps[t.name], obs), "update") for t in self.traits}
+        st.steps = steps
+        st.score = float(self.traits.score([s.value for s in steps.values()]))
         st.trust = float(tr.trust_update(st.trust, st.score, p))
         st.last_seen = obs.time
         st.observations += 1

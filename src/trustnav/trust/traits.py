@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.trust.params import GammaParams, TrustParams
+from trustnav.trust.params import GammaParams, TrustParams, as_number
 
 __all__ = [
     "N_KEYPOINTS",
@@ -89,14 +89,21 @@ def relative_pose(keypoints: ArrayLike, bbox: ArrayLike) -> NDArray[np.float64]:
     return (kp - box[:2]) / size
 
 
-def fluctuation_confidence(p_now: ArrayLike, p_prev: ArrayLike, p: TrustParams) -> float:
+def fluctuation_confidence(p_now: ArrayLike, p_prev: ArrayLike, p: TrustParams | float) -> float:
     """`pose_conf`: C_fluc = sat(F N_k / sum_n ||P(t)[n] - P(t-1)[n]||_2).
 
+    ``p``: the TrustParams (F = ``p.fluctuation_sensitivity``) or F itself, a positive number.
     Keypoints missing (NaN) in either frame are left out and the sum is rescaled by
     N_k / (number present), so that F keeps its meaning as the constant of proportionality to
     the mean keypoint deviation. No keypoint in common: ValueError. A motionless pose (sum 0)
     gives full confidence 1.
     """
+    if isinstance(p, TrustParams):
+        sensitivity = p.fluctuation_sensitivity
+    else:
+        sensitivity = as_number("fluctuation sensitivity F", p)
+        if not 0.0 < sensitivity < np.inf:
+            raise ValueError(f"fluctuation sensitivity F (pose_conf) must be a positive number, got {p!r}")
     a = np.asarray(p_now, dtype=float)
     b = np.asarray(p_prev, dtype=float)
     if a.shape != (N_KEYPOINTS, 2) or b.shape != (N_KEYPOINTS, 2):
@@ -109,7 +116,7 @@ def fluctuation_confidence(p_now: ArrayLike, p_prev: ArrayLike, p: TrustParams) 
     total = float(dist[present].sum()) * N_KEYPOINTS / n
     if total <= 0.0:
         return 1.0
-    return float(min(1.0, p.fluctuation_sensitivity * N_KEYPOINTS / total))
+    return float(min(1.0, sensitivity * N_KEYPOINTS / total))
 
 
 def pose_trait_init(p: TrustParams) -> float:

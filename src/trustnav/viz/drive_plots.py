@@ -2,24 +2,28 @@
 `dist_carla2`, `trust_frames`): top view, trust over time, distance over time, annotated camera
 frames and an MP4 of the top view with the latest camera frame as picture-in-picture.
 
-Reads :class:`trustnav.sim.driving.episode.DriveResult` s; never drives a simulation.
+Reads drive results (duck-typed: the fields and methods of
+:class:`trustnav.sim.driving.episode.DriveResult`: ``scenario``, ``times``, ``ego``, ``pedestrians``,
+``trusts``, ``frames``, ``distances``, ``trust_series``, ``road_polygons``, ``top_view_image``) and
+imports nothing of trustnav but :mod:`trustnav.viz`; never drives a simulation. Figures are
+``matplotlib.figure.Figure`` objects on an Agg canvas: no pyplot, no global backend change.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.perception.phone import phone_label
-from trustnav.sim.driving.episode import DriveResult
-from trustnav.sim.driving.sensing import FrameReport
+DriveResult = Any  # trustnav.sim.driving.episode.DriveResult, read duck-typed
+FrameReport = Any  # trustnav.sim.driving.sensing.FrameReport
 
 __all__ = [
     "annotated_frames",
+    "latest_annotated_frame",
     "plot_distance",
     "plot_top_view",
     "plot_trust",
@@ -38,27 +42,19 @@ def trust_rgb(trust: float) -> str:
     return next(c for lim, c in _TRUST_COLOURS if trust > lim)
 
 
-def _setup():
-    import matplotlib
+def _figure(figsize: tuple[float, float]) -> tuple[Any, Any]:
+    """A Figure with one Axes on its own Agg canvas (no pyplot state, no backend switch)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot()
 
-    return plt
 
-
-def _road_polygons(result: DriveResult) -> tuple[NDArray, NDArray, NDArray]:
-    """Road and sidewalk outlines (xy) and the road's unit direction."""
-    road = result.scenario.road
-    a, b = np.asarray(road.start), np.asarray(road.end)
-    t = (b - a) / np.linalg.norm(b - a)
-    n = np.array([-t[1], t[0]])
-    hw, sw = road.width / 2, road.sidewalk_width
-
-    def band(l0: float, l1: float) -> NDArray:
-        return np.array([a + l0 * n, b + l0 * n, b + l1 * n, a + l1 * n])
-
-    return band(-hw, hw), np.stack([band(hw, hw + sw), band(-hw - sw, -hw)]), t
+def _many(results: Any) -> list[Any]:
+    """One result or a sequence of them, as a list."""
+    return list(results) if isinstance(results, Sequence) else [results]
 
 
 def _yx(p: NDArray) -> tuple[NDArray, NDArray]:
@@ -70,12 +66,13 @@ def _yx(p: NDArray) -> tuple[NDArray, NDArray]:
 def plot_top_view(results: DriveResult | Sequence[DriveResult], path: str | Path, title: str | None = None) -> Path:
     """Top view: road, reference line, ego path(s), pedestrians with their R circles coloured by
     final trust (several results: one path each, e.g. Case II attentive vs distracted)."""
-    plt = _setup()
-    rs = [results] if isinstance(results, DriveResult) else list(results)
+    from matplotlib.patches import Circle
+
+    rs = _many(results)
     r0 = rs[0]
     sc = r0.scenario
-    fig, ax = plt.subplots(figsize=(10, 4.2))
-    road, walks, _ = _road_polygons(r0)
+    fig, ax = _figure((10, 4.2))
+    road, walks, _ = r0.road_polygons()
     ax.fill(*_yx(road), color="#c8c8c8", zorder=0)
     for w in walks:
         ax.fill(*_yx(w), color="#e9e4da", zorder=0)
@@ -94,7 +91,7 @@ def plot_top_view(results: DriveResult | Sequence[DriveResult], path: str | Path
                 ax.plot(*_yx(r.pedestrians[:, j]), color=c, lw=1.5)
             i_min = int(np.argmin(r.distances[:, j]))
             q = r.pedestrians[i_min, j]
-            circ = plt.Circle(_yx(q)[::1], sc.control.safety_radius, fill=False, ls="--", color=c, lw=1.3)
+            circ = Circle(_yx(q)[::1], sc.control.safety_radius, fill=False, ls="--", color=c, lw=1.3)
             ax.add_patch(circ)
             ax.plot(*_yx(q), "o", color=c, ms=8, mec="k", zorder=6)
             if k == 0 or len(rs) > 1:
@@ -118,7 +115,6 @@ def plot_top_view(results: DriveResult | Sequence[DriveResult], path: str | Path
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=130)
-    plt.close(fig)
     return out
 
 
@@ -130,8 +126,7 @@ def _variant(r: DriveResult) -> str:
 def plot_trust(result: DriveResult, path: str | Path) -> Path:
     """Trust of each pedestrian over time as the controller used it, with a marker at every frame
     that observed (and so updated) the pedestrian (Fig. `trust_scene1`)."""
-    plt = _setup()
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    fig, ax = _figure((6.4, 3.6))
     for j, p in enumerate(result.scenario.pedestrians):
         c = _PED_STYLES[j % len(_PED_STYLES)]
         kind = "attentive" if p.attentive else "distracted"
@@ -146,25 +141,23 @@ def plot_trust(result: DriveResult, path: str | Path) -> Path:
     ax.set_ylabel("aggregated trust")
     ax.set_title(f"{result.scenario.name}: trust from the camera ({result.sensing}, {result.capture_rate:g} frame/s)",
                  fontsize=10)  # fmt: skip
-    return _finish(plt, fig, ax, path)
+    return _finish(fig, ax, path)
 
 
-def _finish(plt, fig, ax, path: str | Path) -> Path:
+def _finish(fig: Any, ax: Any, path: str | Path) -> Path:
     """Legend, grid and layout of a time plot; saved to ``path`` and closed."""
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=130)
-    plt.close(fig)
     return out
 
 
 def plot_distance(results: DriveResult | Sequence[DriveResult], path: str | Path) -> Path:
     """Ego-pedestrian distance over time with the margin R (Fig. `dist_carla2`)."""
-    plt = _setup()
-    rs = [results] if isinstance(results, DriveResult) else list(results)
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    rs = _many(results)
+    fig, ax = _figure((6.4, 3.6))
     for k, r in enumerate(rs):
         for j, p in enumerate(r.scenario.pedestrians):
             tag = p.name if len(rs) == 1 else f"{p.name} ({_variant(r)})"
@@ -181,7 +174,7 @@ def plot_distance(results: DriveResult | Sequence[DriveResult], path: str | Path
     ax.set_xlabel("time (s)")
     ax.set_ylabel("distance to pedestrian (m)")
     ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians", fontsize=10)
-    return _finish(plt, fig, ax, path)
+    return _finish(fig, ax, path)
 
 
 # ------------------------------------------------------------------ camera frames and animation
@@ -232,7 +225,7 @@ def annotated_frames(result: DriveResult) -> list[NDArray[np.uint8]]:
             recs.append({"bbox": [float(x) for x in s.person.bbox], "trust": float(v.trust or 0.0),
                          "eye_contact": s.eye_contact, "track_id": s.track_id})  # fmt: skip
             kps.append(s.person.keypoints)
-            labels.append(phone_label(s.phone))
+            labels.append(s.phone_label)
         img = annotate(_backdrop(result, f), recs, kps, labels)
         text = f"frame {f.index}  t = {f.time:.1f} s  detected {f.detections}/{f.ground_truth}"
         cv2.putText(img, text, (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 0), 4, cv2.LINE_AA)
@@ -241,69 +234,31 @@ def annotated_frames(result: DriveResult) -> list[NDArray[np.uint8]]:
     return out
 
 
+def latest_annotated_frame(result: DriveResult) -> NDArray[np.uint8] | None:
+    """The latest captured frame, annotated, as RGB (``DriveEnv(render_fn=...)``); None before the first."""
+    import cv2
+
+    if not result.frames:
+        return None
+    last = _LastFrame(result)
+    return cv2.cvtColor(annotated_frames(last)[0], cv2.COLOR_BGR2RGB)
+
+
+class _LastFrame:
+    """A result seen through its last frame only."""
+
+    def __init__(self, result: DriveResult) -> None:
+        self._r = result
+        self.frames = result.frames[-1:]
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._r, name)
+
+
 def _bgr(hex_colour: str) -> tuple[int, int, int]:
     h = hex_colour.lstrip("#")
     r, g, b = (int(h[i : i + 2], 16) for i in (0, 2, 4))
     return (b, g, r)
-
-
-def _top_view_frame(result: DriveResult, i: int, size: tuple[int, int], trail: NDArray) -> NDArray[np.uint8]:
-    """One animation frame (BGR) of the top view at sample i, drawn with OpenCV (fast)."""
-    import cv2
-
-    w, h = size
-    sc = result.scenario
-    ys = np.array([sc.ego_start[1], sc.goal[1]])
-    y_hi, y_lo = ys.max() + 4, ys.min() - 4
-    xc = float(np.mean([sc.ego_start[0], sc.goal[0]]))
-    scale = w / (y_hi - y_lo)
-
-    def px(p: NDArray) -> NDArray[np.int32]:
-        p = np.asarray(p, dtype=float).reshape(-1, 2)
-        u = (y_hi - p[:, 1]) * scale
-        v = h * 0.5 - (p[:, 0] - xc) * scale
-        return np.round(np.column_stack([u, v])).astype(np.int32)
-
-    img = np.full((h, w, 3), (96, 140, 96), dtype=np.uint8)
-    road, walks, _ = _road_polygons(result)
-    for wlk in walks:
-        cv2.fillPoly(img, [px(wlk)], (210, 220, 228))
-    cv2.fillPoly(img, [px(road)], (90, 90, 90))
-    ref = px(np.array([sc.ego_start, sc.goal]))
-    for k in range(0, 60, 2):
-        a = ref[0] + (ref[1] - ref[0]) * k / 60
-        b = ref[0] + (ref[1] - ref[0]) * (k + 1) / 60
-        cv2.line(img, tuple(int(v) for v in a), tuple(int(v) for v in b), (230, 230, 230), 1, cv2.LINE_AA)
-    cv2.drawMarker(img, tuple(int(v) for v in px(np.array(sc.goal))[0]), (0, 215, 255), cv2.MARKER_STAR, 22, 2)
-    radius = sc.control.safety_radius
-    for j, p in enumerate(sc.pedestrians):
-        q = result.pedestrians[i, j]
-        tr = float(result.trusts[i, j])
-        c = _bgr(trust_rgb(tr))
-        centre = tuple(int(v) for v in px(q)[0])
-        cv2.circle(img, centre, int(radius * scale), c, 2, cv2.LINE_AA)
-        cv2.circle(img, centre, 6, c, -1, cv2.LINE_AA)
-        label = f"{p.name} {tr:.2f}"
-        cv2.putText(img, label, (centre[0] - 40, centre[1] + (int(radius * scale) + 18) * (1 if q[0] < xc else -1)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.5, c, 1, cv2.LINE_AA)  # fmt: skip
-    if i > 0:
-        cv2.polylines(img, [px(trail[: i + 1])], False, (40, 40, 240), 2, cv2.LINE_AA)
-    if i < len(result.plans):
-        cv2.polylines(img, [px(result.plans[i][:, :2])], False, (255, 255, 0), 2, cv2.LINE_AA)
-    x, y, yaw, v = result.ego[i]
-    c, s = math.cos(yaw), math.sin(yaw)
-    body = np.array([[x + c * dx - s * dy, y + s * dx + c * dy] for dx, dy in
-                     ((-2.3, -0.9), (2.3, -0.9), (2.3, 0.9), (-2.3, 0.9))])  # fmt: skip
-    overlay = img.copy()
-    cv2.fillPoly(overlay, [px(body)], (30, 30, 220))
-    img = cv2.addWeighted(overlay, 0.55, img, 0.45, 0.0)
-    cv2.circle(img, tuple(int(v) for v in px(np.array([x, y]))[0]), 4, (255, 255, 255), -1, cv2.LINE_AA)
-    d = result.distances[i]
-    text = f"t = {result.times[i]:4.1f} s   v = {v:4.1f} m/s   " + "  ".join(
-        f"d({p.name}) = {d[j]:4.1f} m" for j, p in enumerate(sc.pedestrians)
-    )
-    cv2.putText(img, text, (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
-    return img
 
 
 def write_animation(
@@ -323,7 +278,7 @@ def write_animation(
     images = []
     for i in range(len(result.times)):
         img = np.zeros((canvas[1], canvas[0], 3), dtype=np.uint8)
-        img[: size[1]] = _top_view_frame(result, i, size, result.ego[:, :2])
+        img[: size[1]] = result.top_view_image(i, size)
         shown = [k for k, fi in enumerate(idx_of_frame) if fi <= i]
         if shown and frames:
             cam = cv2.resize(frames[shown[-1]], (cam_w, cam_h), interpolation=cv2.INTER_AREA)

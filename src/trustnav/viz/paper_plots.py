@@ -5,19 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle
 
 __all__ = ["plot_distances", "plot_paths", "plot_scenario"]
 
 
 def _ped_markers(ax: Any, sc: Any) -> None:
     for j, p in enumerate(sc.pedestrians):
-        ax.add_patch(plt.Circle(p.position, sc.safety_radius, color="tab:red", alpha=0.12, lw=0))
-        ax.add_patch(plt.Circle(p.position, sc.safety_radius, color="tab:red", fill=False, ls="--", lw=0.8))
+        ax.add_patch(Circle(p.position, sc.safety_radius, color="tab:red", alpha=0.12, lw=0))
+        ax.add_patch(Circle(p.position, sc.safety_radius, color="tab:red", fill=False, ls="--", lw=0.8))
         ax.plot(*p.position, "ko", ms=5)
         ax.annotate(
             f"ped {j + 1}, trust {p.trust:g}", p.position, xytext=(4, 6), textcoords="offset points", fontsize=8
@@ -27,13 +27,15 @@ def _ped_markers(ax: Any, sc: Any) -> None:
 def plot_paths(result: Any, path: str | Path) -> Path:
     """Ego paths in the 50 x 50 world (Scenario I: one per trust; II: trust-aware vs control)."""
     sc = result.scenario
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    fig = Figure(figsize=(5.5, 5.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
     if sc.trust_sweep:
-        cmap = plt.get_cmap("viridis")
+        cmap = colormaps["viridis"]
         for t, ep in zip(sc.trust_sweep, result.episodes, strict=True):
             ax.plot(ep.ego[:, 0], ep.ego[:, 1], color=cmap(t), lw=1.6, label=f"trust {t:g}")
         p = sc.pedestrians[0]
-        ax.add_patch(plt.Circle(p.position, sc.safety_radius, color="tab:red", fill=False, ls="--", lw=0.8))
+        ax.add_patch(Circle(p.position, sc.safety_radius, color="tab:red", fill=False, ls="--", lw=0.8))
         ax.plot(*p.position, "ko", ms=5)
     else:
         _ped_markers(ax, sc)
@@ -57,7 +59,6 @@ def plot_paths(result: Any, path: str | Path) -> Path:
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=130)
-    plt.close(fig)
     return out
 
 
@@ -67,7 +68,9 @@ def plot_distances(result: Any, path: str | Path) -> Path:
     sc = result.scenario
     rows = result.variant_episodes or {sc.timing: result.episodes}
     n_r, n_c = len(rows), len(sc.horizons)
-    fig, axes = plt.subplots(n_r, n_c, figsize=(3.2 * n_c, 2.6 * n_r), squeeze=False, sharey=True)
+    fig = Figure(figsize=(3.2 * n_c, 2.6 * n_r))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(n_r, n_c, squeeze=False, sharey=True)
     lo = int(np.argmin([p.trust for p in sc.pedestrians]))
     hi = int(np.argmax([p.trust for p in sc.pedestrians]))
     for r, (timing, eps) in enumerate(rows.items()):
@@ -91,7 +94,6 @@ def plot_distances(result: Any, path: str | Path) -> Path:
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=120)
-    plt.close(fig)
     return out
 
 

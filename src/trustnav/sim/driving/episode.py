@@ -10,8 +10,10 @@ world (as in the authors' code), optionally with noise; trust comes only from pe
 The world is one implementation of :class:`DriveWorld` (ego state, pedestrian states, what the
 camera sees, apply a command, advance time): :class:`SimWorld` is trustnav's own (bicycle plant with
 actuation latency, constant-velocity pedestrians), ``trustnav.carla_bridge.CarlaWorld`` a CARLA
-server. :class:`DriveSimulation` adds the camera rate, sensing and trust memory to a world (used by
-:func:`drive` with the MPC in the loop and by the Gymnasium environment with any controller);
+server. :class:`DriveSimulation` adds the camera rate, sensing and trust memory to a world and is the
+engine's :class:`~trustnav.sim.engine.World` of every drive (:func:`drive` runs it with the MPC on
+the engine's runner; the Gymnasium environment steps the same world through a
+:class:`~trustnav.sim.engine.Rollout` with any controller);
 :func:`run_drive` is a pure function of (scenario, parameters, seed) that returns a
 :class:`DriveResult` and writes nothing.
 """
@@ -26,7 +28,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control import MpcController, SolveStatus
+from trustnav.control import SolveStatus
+from trustnav.sim.driving import topview
 from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.camera import CameraPose
 from trustnav.sim.driving.sensing import (
@@ -40,6 +43,7 @@ from trustnav.sim.driving.sensing import (
     projected_box,
 )
 from trustnav.sim.driving.world import DriveScenario, VehiclePlant, pedestrian_bodies, pedestrian_states
+from trustnav.sim.engine import Decision, EpisodeResult, Observation, Sample, make_mpc, run
 
 __all__ = [
     "DriveResult",
@@ -48,6 +52,7 @@ __all__ = [
     "SimWorld",
     "drive",
     "drive_metrics",
+    "drive_result",
     "make_sensor",
     "prepare_scenario",
     "run_drive",
@@ -152,25 +157,46 @@ class DriveSimulation:
         capture_rate: float | None = None,
         control_rate: float | None = None,
         world: DriveWorld | None = None,
+        max_frames: int | None = None,
     ) -> None:
         self.scenario = scenario
-        self.seed = seed
-        ss = np.random.SeedSequence(seed)
-        sense_seq, input_seq = ss.spawn(2)
-        self.rng_inputs = np.random.default_rng(input_seq)
-        self.sensor = sensor or KeypointSensor(scenario.sensing, np.random.default_rng(sense_seq))
         self.capture_rate = float(capture_rate or scenario.camera.rate)
         self.control_rate = float(control_rate or scenario.control.rate)
         if not self.capture_rate > 0 or not self.control_rate > 0:
             raise ValueError("capture_rate and control_rate must be positive")
         self.period = 1.0 / self.control_rate
+        self.max_frames = max_frames
+        self._own_sensor = sensor is None
+        self.sensor: KeypointSensor | RenderSensor | None = sensor
+        self._given_world = world
         self.world: DriveWorld = SimWorld(scenario) if world is None else world
+        self.name = self.world.name
         n, expected = len(self.world.pedestrian_states()[0]), len(scenario.pedestrians)
         if n != expected:
             raise ValueError(f"the {self.world.name} world has {n} pedestrians, the scenario {expected}")
-        self.trust = TrustTracker(len(scenario.pedestrians), keep_time=scenario.sensing.keep_time)
+        self.reset(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        """Back to t = 0 with the randomness of ``seed`` (None: the current seed): new sensing and
+        input-noise generators, empty trust memory and frames, a new :class:`SimWorld` (a world
+        of another kind, e.g. CARLA, cannot go back in time once it has run)."""
+        if seed is not None or not hasattr(self, "seed"):
+            self.seed = 0 if seed is None else int(seed)
+        sc = self.scenario
+        if self.world.time > 0:
+            if self._given_world is not None:
+                raise ValueError(f"the {self.world.name} world cannot be reset; start a new one")
+            self.world = SimWorld(sc)
+        sense_seq, input_seq = np.random.SeedSequence(self.seed).spawn(2)
+        self.rng_inputs = np.random.default_rng(input_seq)
+        if self._own_sensor:
+            self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
+        self.trust = TrustTracker(len(sc.pedestrians), keep_time=sc.sensing.keep_time)
         self.frames: list[FrameReport] = []
         self._next_capture = 0.0
+        self.steps = 0
+        self.max_steps = math.ceil(sc.duration * self.control_rate - 1e-9)
+        self.min_distance_fine = np.full(len(sc.pedestrians), np.inf)
 
     @property
     def time(self) -> float:
@@ -236,16 +262,46 @@ class DriveSimulation:
         self._next_capture = len(self.frames) / self.capture_rate
         return report
 
-    def advance_samples(self, command: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Send (steer, accel) to the car and run the world one control period; returns the world's
-        sub-step samples (ego states (n, 4), pedestrian positions (n, N, 2))."""
+    def advance_samples(
+        self, command: ArrayLike, duration: float | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Send (steer, accel) to the car and run the world ``duration`` seconds (default one
+        control period); returns the world's sub-step samples (ego states (n, 4), pedestrian
+        positions (n, N, 2)) and keeps the closest approach over them."""
         self.world.send(command)
-        return self.world.advance(self.period)
+        sub, ped_sub = self.world.advance(self.period if duration is None else float(duration))
+        d = np.linalg.norm(sub[:, None, :2] - ped_sub, axis=2).min(axis=0)
+        self.min_distance_fine = np.minimum(self.min_distance_fine, d)
+        self.steps += 1
+        return sub, ped_sub
 
-    def advance(self, command: ArrayLike) -> NDArray[np.float64]:
-        """Send (steer, accel) to the car and run the world one control period; returns the ego's
-        sub-step states."""
-        return self.advance_samples(command)[0]
+    def advance(self, command: ArrayLike, duration: float | None = None) -> NDArray[np.float64]:
+        """Send (steer, accel) to the car and run the world ``duration`` seconds (default one
+        control period); returns the ego's sub-step states."""
+        return self.advance_samples(command, duration)[0]
+
+    # -- the engine's World protocol (trustnav.sim.engine)
+    def observe(self) -> Observation:
+        """Capture a frame when one is due (up to ``max_frames``), then the controller's inputs."""
+        if self.capture_due() and (self.max_frames is None or len(self.frames) < self.max_frames):
+            self.capture()
+        state, pos, vel, tr = self.controller_inputs()
+        return Observation(self.time, state, pos, vel, tr)
+
+    def done(self) -> str | None:
+        """ "goal" within ``goal_tolerance``; "time" after the scenario's duration (in control steps)."""
+        if self.reached_goal():
+            return "goal"
+        return "time" if self.steps >= self.max_steps else None
+
+    def record(self) -> Sample:
+        return Sample(self.time, self.state, self.pedestrians()[0], self.trust.trusts())
+
+    def outcome(self) -> dict[str, Any]:
+        """Closest approach per pedestrian over the world's sub-steps (once it has advanced)."""
+        if not self.steps:
+            return {}
+        return {"ped_min_distance": [float(v) for v in self.min_distance_fine]}
 
     def distance_to_goal(self) -> float:
         return float(np.hypot(*(self.state[:2] - np.asarray(self.scenario.goal))))
@@ -277,6 +333,7 @@ class DriveResult:
     time_to_goal: float | None
     min_distance_fine: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # over plant sub-steps
     world: str = "sim"  # which DriveWorld ran it
+    episode: EpisodeResult | None = None  # the engine's result it was read from
 
     @property
     def distances(self) -> NDArray[np.float64]:
@@ -291,6 +348,14 @@ class DriveResult:
 
     def metrics(self) -> dict[str, Any]:
         return drive_metrics(self)
+
+    def road_polygons(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Road and sidewalk outlines (xy) and the road's unit direction (for plots)."""
+        return topview.road_polygons(self.scenario.road)
+
+    def top_view_image(self, i: int, size: tuple[int, int] = (1280, 400)) -> NDArray[np.uint8]:
+        """The top view (BGR) at sample ``i``: :func:`trustnav.sim.driving.topview.top_view_image`."""
+        return topview.top_view_image(self, i, size)
 
 
 def drive_metrics(r: DriveResult) -> dict[str, Any]:
@@ -418,56 +483,47 @@ def drive(
     progress: Callable[[float, float], None] | None = None,
     max_frames: int | None = None,
 ) -> DriveResult:
-    """Run the trust-aware MPC on ``sim`` (any :class:`DriveWorld`) until the goal or the scenario's
-    duration: per control step capture a frame when due, read the controller's inputs, solve, and
-    apply the plan's first input (index 0: the command for now; the controller itself plans from
-    the state predicted ``control.latency`` ahead)."""
+    """Run the trust-aware MPC on ``sim`` (any :class:`DriveWorld`) with the engine's runner until
+    the goal or the scenario's duration: per control step capture a frame when due, read the
+    controller's inputs, solve, and apply the plan's first input (index 0: the command for now; the
+    controller itself plans from the state predicted ``control.latency`` ahead)."""
     sc = sim.scenario
-    model = sc.vehicle.model()
-    ctl = MpcController(model, sc.control.cost(sc.ego_start, sc.goal), sc.control.config())
-    times, ego, peds, trusts = [sim.time], [sim.state], [sim.pedestrians()[0]], [sim.trust.trusts()]
-    statuses, fallbacks, slack, solve_times, plans = [], [], [], [], []
-    min_fine = np.full(len(sc.pedestrians), np.inf)
-    reached = sim.reached_goal()
-    steps = math.ceil(sc.duration * sim.control_rate - 1e-9)
-    for _ in range(steps):
-        if reached:
-            break
-        if sim.capture_due() and (max_frames is None or len(sim.frames) < max_frames):
-            sim.capture()
-        state, pos, vel, tr = sim.controller_inputs()
-        sol = ctl.step(state, pos, vel, tr, time=sim.time)  # places the commands still in flight
-        statuses.append(sol.status)
-        fallbacks.append(sol.fallback)
-        slack.append(sol.slack_used)
-        solve_times.append(sol.solve_time)
-        plans.append(sol.predicted_states)
-        sub, ped_sub = sim.advance_samples(sol.control)
-        min_fine = np.minimum(min_fine, np.linalg.norm(sub[:, None, :2] - ped_sub, axis=2).min(axis=0))
-        times.append(sim.time)
-        ego.append(sim.state)
-        peds.append(sim.pedestrians()[0])
-        trusts.append(sim.trust.trusts())
-        reached = sim.reached_goal()
+    if max_frames is not None:
+        sim.max_frames = max_frames
+    policy = make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True)
+
+    def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:
             progress(sim.time, sc.duration)
+
+    return drive_result(sim, sensing, run(sim, policy, on_step=report))
+
+
+def drive_result(sim: DriveSimulation, sensing: str, episode: EpisodeResult) -> DriveResult:
+    """The :class:`DriveResult` of an engine episode on ``sim``."""
+    plans = [p for p in episode.plans if p is not None]
+    n = episode.steps
     return DriveResult(
-        scenario=sc,
+        scenario=sim.scenario,
         sensing=sensing,
         seed=sim.seed,
         capture_rate=sim.capture_rate,
-        times=np.array(times),
-        ego=np.array(ego),
-        pedestrians=np.array(peds),
-        trusts=np.array(trusts),
-        statuses=statuses,
-        fallbacks=np.array(fallbacks, dtype=bool),
-        slack=np.array(slack, dtype=bool),
-        solve_times=np.array(solve_times),
-        plans=np.array(plans),
+        times=episode.times,
+        ego=episode.ego,
+        pedestrians=episode.pedestrians,
+        trusts=episode.trusts,
+        statuses=[SolveStatus(s) for s in episode.statuses if s in _STATUS_VALUES],
+        fallbacks=np.array([s.fallback for s in episode.stats], dtype=bool).reshape(n),
+        slack=np.array([s.relaxed for s in episode.stats], dtype=bool).reshape(n),
+        solve_times=np.array([s.solve_time for s in episode.stats if math.isfinite(s.solve_time)]),
+        plans=np.array(plans) if plans else np.zeros((0, 2, 4)),
         frames=sim.frames,
-        reached_goal=reached,
-        time_to_goal=sim.time if reached else None,
-        min_distance_fine=min_fine,
+        reached_goal=episode.reached_goal,
+        time_to_goal=sim.time if episode.reached_goal else None,
+        min_distance_fine=sim.min_distance_fine.copy() if sim.steps else np.zeros(0),
         world=sim.world.name,
+        episode=episode,
     )
+
+
+_STATUS_VALUES = frozenset(s.value for s in SolveStatus)

@@ -13,12 +13,18 @@ period (1 / control.rate s; it acts after the actuation latency). Observation: `
 ``pedestrians`` (N, 2) positions and ``velocities`` (N, 2) (from the world, with the scenario's
 noise), ``trusts`` (N,) from perception (0 until a pedestrian is first observed), ``time``.
 Reward: progress along the lane (m) minus 10 per step with a pedestrian inside the margin R;
-terminated at the goal, truncated after ``scenario.duration``. ``render()`` returns the top view
-(``view="top"``) or the latest annotated camera frame (``view="camera"``), RGB.
+terminated at the goal, truncated after ``scenario.duration``.
+
+The environment steps the same engine world as ``trustnav drive`` (:class:`DriveSimulation`, through
+a :class:`~trustnav.sim.engine.Rollout`): the same capture, sensing, controller inputs and plant.
+``render()`` returns the top view (``view="top"``) or the latest camera image (``view="camera"``:
+the rendered frame with render sensing, else the top view), RGB; ``render_fn(result) -> RGB``
+replaces it (e.g. ``trustnav.viz.drive_plots.latest_annotated_frame`` for the annotated frame).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -26,9 +32,10 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from trustnav.sim.driving.episode import DriveResult, DriveSimulation
+from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive_result
 from trustnav.sim.driving.sensing import RenderSensor, make_render_sensing
 from trustnav.sim.driving.world import DriveScenario, load_drive_scenario
+from trustnav.sim.engine import Decision, Rollout
 
 __all__ = ["ENV_ID", "DriveEnv"]
 
@@ -48,6 +55,7 @@ class DriveEnv(gym.Env):
         capture_rate: float | None = None,
         render_mode: str | None = "rgb_array",
         view: str = "top",
+        render_fn: Callable[[DriveResult], NDArray[np.uint8]] | None = None,
     ) -> None:
         sc = load_drive_scenario(scenario) if isinstance(scenario, str) else scenario
         if sensing not in ("keypoints", "render"):
@@ -59,6 +67,7 @@ class DriveEnv(gym.Env):
         self.capture_rate = capture_rate
         self.render_mode = render_mode
         self.view = view
+        self.render_fn = render_fn
         model = self.scenario.vehicle.model()
         lo, hi = model.input_bounds()
         self.action_space = spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
@@ -76,6 +85,7 @@ class DriveEnv(gym.Env):
         self._renderer: Any = None
         self._pipeline: Any = None
         self.sim: DriveSimulation | None = None
+        self.rollout: Rollout | None = None
 
     # -- Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -87,41 +97,36 @@ class DriveEnv(gym.Env):
             sensor = RenderSensor(self._renderer, self._pipeline)
         run_seed = int(self.np_random.integers(2**31)) if seed is None else int(seed)
         self.sim = DriveSimulation(self.scenario, seed=run_seed, sensor=sensor, capture_rate=self.capture_rate)
-        self._history: dict[str, list] = {"times": [], "ego": [], "peds": [], "trusts": [], "plans": []}
-        if self.sim.capture_due():
-            self.sim.capture()
-        self._record()
-        return self._obs(), self._info()
+        sc = self.scenario.control
+        self.rollout = Rollout(self.sim, horizon=sc.horizon, safety_radius=sc.safety_radius)
+        return self._observe(), self._info()
 
     def step(self, action: Any):
-        if self.sim is None:
+        if self.sim is None or self.rollout is None:
             raise RuntimeError("call reset() before step()")
         u = np.clip(np.asarray(action, dtype=float).reshape(2), self.action_space.low, self.action_space.high)
         s_before = self._progress()
-        self.sim.advance(u)
-        if self.sim.capture_due():
-            self.sim.capture()
-        self._record()
+        self.rollout.apply(Decision(u))
+        obs = self._observe()
         d = self._distances()
         inside = bool(np.any(d < self.scenario.control.safety_radius))
         reward = self._progress() - s_before - (10.0 if inside else 0.0)
-        terminated = self.sim.reached_goal()
-        truncated = (not terminated) and self.sim.time >= self.scenario.duration - 1e-9
-        return self._obs(), float(reward), terminated, truncated, self._info()
+        reason = self.rollout.done()
+        terminated = reason == "goal"
+        truncated = reason == "time"
+        return obs, float(reward), terminated, truncated, self._info()
 
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array" or self.sim is None:
             return None
+        result = self.result()
+        if self.render_fn is not None:
+            return self.render_fn(result)
+        if self.view == "camera" and result.frames and result.frames[-1].image is not None:
+            return result.frames[-1].image
         import cv2
 
-        from trustnav.viz import drive_plots
-
-        result = self.result()
-        if self.view == "camera" and result.frames:
-            last = DriveResult(**{**result.__dict__, "frames": result.frames[-1:]})
-            return cv2.cvtColor(drive_plots.annotated_frames(last)[0], cv2.COLOR_BGR2RGB)
-        img = drive_plots._top_view_frame(result, len(result.times) - 1, (1280, 400), result.ego[:, :2])
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return cv2.cvtColor(result.top_view_image(len(result.times) - 1), cv2.COLOR_BGR2RGB)
 
     def close(self) -> None:
         self._close_sensing()
@@ -129,45 +134,19 @@ class DriveEnv(gym.Env):
     # -- helpers
     def result(self) -> DriveResult:
         """The episode so far as a DriveResult (for the plots of trustnav.viz.drive_plots)."""
-        assert self.sim is not None
-        h = self._history
-        n_steps = len(h["times"]) - 1
-        return DriveResult(
-            scenario=self.scenario,
-            sensing=self.sensing,
-            seed=self.sim.seed,
-            capture_rate=self.sim.capture_rate,
-            times=np.array(h["times"]),
-            ego=np.array(h["ego"]),
-            pedestrians=np.array(h["peds"]),
-            trusts=np.array(h["trusts"]),
-            statuses=[],
-            fallbacks=np.zeros(n_steps, dtype=bool),
-            slack=np.zeros(n_steps, dtype=bool),
-            solve_times=np.zeros(0),
-            plans=np.zeros((0, 2, 4)),
-            frames=list(self.sim.frames),
-            reached_goal=self.sim.reached_goal(),
-            time_to_goal=self.sim.time if self.sim.reached_goal() else None,
-        )
+        assert self.sim is not None and self.rollout is not None
+        return drive_result(self.sim, self.sensing, self.rollout.result())
 
-    def _record(self) -> None:
-        assert self.sim is not None
-        h = self._history
-        h["times"].append(self.sim.time)
-        h["ego"].append(self.sim.state)
-        h["peds"].append(self.sim.pedestrians()[0])
-        h["trusts"].append(self.sim.trust.trusts())
-
-    def _obs(self) -> dict[str, NDArray[np.float64]]:
-        assert self.sim is not None
-        state, pos, vel, tr = self.sim.controller_inputs()
+    def _observe(self) -> dict[str, NDArray[np.float64]]:
+        """The world's observation (captures a frame when due), as the observation space has it."""
+        assert self.rollout is not None
+        o = self.rollout.observe()
         return {
-            "ego": state,
-            "pedestrians": pos,
-            "velocities": vel,
-            "trusts": tr,
-            "time": np.array([self.sim.time]),
+            "ego": o.ego,
+            "pedestrians": o.positions,
+            "velocities": o.velocities,
+            "trusts": o.trusts,
+            "time": np.array([o.time]),
         }
 
     def _info(self) -> dict[str, Any]:

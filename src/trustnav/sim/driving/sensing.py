@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from trustnav.perception.confidence import HeadConfidenceParams
 from trustnav.perception.looking import LookingModel, normalise_keypoints
-from trustnav.perception.phone import PoseGeometryPhoneClassifier
+from trustnav.perception.phone import PoseGeometryPhoneClassifier, phone_label
 from trustnav.perception.types import Person, box_iou
 from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.camera import NEAR, CameraPose
@@ -69,6 +69,11 @@ class SensedPerson:
     person: Person
     eye_contact: float
     phone: float
+
+    @property
+    def phone_label(self) -> str:
+        """'N', 'U' or 'Y': the phone-use confidence as the annotated frames label it."""
+        return phone_label(self.phone)
 
 
 @dataclass

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from trustnav.control import BoundedProportionalReference, KinematicBicycle, LaneTrackingCost, MpcConfig
 from trustnav.sim.driving import body
 from trustnav.sim.driving.camera import CameraSpec
-from trustnav.sim.driving.render import StreetSpec
+from trustnav.sim.driving.street import StreetSpec
 from trustnav.trust import PAPER_GAMMA_CARLA, GammaParams
 
 __all__ = [
