@@ -180,3 +180,19 @@ def test_carla_world_runs_on_the_engine(runs, monkeypatch):
     assert type(world).__name__ == "DriveSimulation" and world.world.name == "carla"
     assert r.episode is res and res.world == "carla" and r.metrics()["world"] == "carla"
     _assert_record_shape(res.to_record())
+
+
+@pytest.mark.parametrize(
+    ("command", "message"),
+    [
+        (np.zeros(3), "controller command must be 2 numbers for world 'paper'"),
+        (np.array([np.nan, 0.0]), "controller command must be finite"),
+        ("fast", "controller command must be a vector of numbers"),
+    ],
+)
+def test_a_bad_command_is_refused_by_name(command, message):
+    from trustnav.sim.paper import PaperWorld, load_scenario
+
+    world = PaperWorld(load_scenario("paper-1"))
+    with pytest.raises(ValueError, match=message):
+        engine.run(world, engine.FunctionController(lambda obs: command), max_steps=3)

@@ -166,7 +166,7 @@ class FunctionController:
         self.fn = fn
 
     def step(self, observation: Observation) -> Decision:
-        return Decision(np.asarray(self.fn(observation), dtype=float))
+        return Decision(self.fn(observation))  # checked by the runner (Rollout.apply)
 
 
 class MpcPolicy:
@@ -357,12 +357,30 @@ class Rollout:
         return self.world.observe()
 
     def apply(self, decision: Decision, wall: float = math.nan, cpu: float = math.nan) -> None:
-        """Run the world one control period under ``decision`` and record the new instant."""
+        """Run the world one control period under ``decision`` and record the new instant (a
+        command that is not a finite 1-D vector of the world's input size is refused by name)."""
+        command = self._checked(decision.control)
         self.stats.append(decision.stats)
         self.wall.append(wall)
         self.cpu.append(cpu)
-        self.world.advance(decision.control, self.world.period)
+        self.world.advance(command, self.world.period)
         self.samples.append(self.world.record())
+
+    def _checked(self, control: Any) -> NDArray[np.float64]:
+        size = getattr(self.world, "command_size", None)
+        if size is None and self.stats:  # the world does not say: the first command's size holds
+            size = self._size
+        try:
+            command = np.asarray(control, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"controller command must be a vector of numbers, got {control!r}") from exc
+        if command.ndim != 1 or command.size == 0 or (size is not None and command.size != size):
+            want = f"{size} numbers" if size is not None else "a non-empty 1-D vector"
+            raise ValueError(f"controller command must be {want} for world {self.world.name!r}, got {control!r}")
+        if not np.isfinite(command).all():
+            raise ValueError(f"controller command must be finite, got {command.tolist()!r} at step {len(self.stats)}")
+        self._size = command.size
+        return command
 
     def done(self) -> str | None:
         return self.world.done()

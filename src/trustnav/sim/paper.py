@@ -248,6 +248,7 @@ class PaperWorld:
     and their trusts are fixed; it ends at the goal (``goal_tolerance``) or after ``max_steps``."""
 
     name = "paper"
+    command_size = 2  # the single integrator's velocity
 
     def __init__(self, scenario: PaperScenario, trusts: ArrayLike | None = None) -> None:
         self.scenario = scenario

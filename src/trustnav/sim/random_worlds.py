@@ -283,6 +283,7 @@ class RandomEpisodeWorld:
         self.name = f"random_{world.family}"
         self.period = world.config.dt
         self.model = _model(world)
+        self.command_size = self.model.nu
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:

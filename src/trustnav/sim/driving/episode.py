@@ -171,6 +171,7 @@ class DriveSimulation:
         self._given_world = world
         self.world: DriveWorld = SimWorld(scenario) if world is None else world
         self.name = self.world.name
+        self.command_size = 2  # the car's (steer, acceleration)
         n, expected = len(self.world.pedestrian_states()[0]), len(scenario.pedestrians)
         if n != expected:
             raise ValueError(f"the {self.world.name} world has {n} pedestrians, the scenario {expected}")
