@@ -12,6 +12,7 @@ against the walk_a pedestrians without a phone (final smartphone trait and trust
 
 from __future__ import annotations
 
+import argparse
 import json
 import tempfile
 from pathlib import Path
@@ -32,6 +33,17 @@ TRUTH = json.loads((ROOT / "tests" / "data" / "perception_truth.json").read_text
 
 def inside(p, box) -> bool:
     return box[0] <= p[0] <= box[2] and box[1] <= p[1] <= box[3]
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """No options: ``--help`` prints what the script measures and exits."""
+    parser = argparse.ArgumentParser(
+        prog="perception_eval.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"Reads the shared images and sequences under {SHARED} and the ground truth in tests/data.",
+    )
+    return parser.parse_args(argv)
 
 
 def main() -> None:
@@ -106,4 +118,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    parse_args()
     main()

@@ -4,8 +4,10 @@
 
 The controller is deliberately simple: it steers back to the lane with a proportional law and
 sets its speed from the trust that perception gives each pedestrian ahead: it slows down near a
-pedestrian it does not trust yet. It prints the closest approach to each pedestrian and, with
---out, saves the top view of the last step and the figures of trustnav.viz.drive_plots.
+pedestrian it does not trust yet. The pedestrians it sees are the camera's (positions estimated
+from the image, each with a covariance; ``present`` marks the filled slots). It prints the
+closest approach to each pedestrian and, with --out, saves the top view of the last step and the
+figures of trustnav.viz.drive_plots.
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ def user_controller(obs: dict, lane_start: np.ndarray, lane_goal: np.ndarray) ->
     steer = -0.3 * offset - 1.2 * heading_err
     # speed: 8 m/s, less near pedestrians ahead that are not trusted (trust 0 = never seen)
     v_ref = 8.0
-    for p, trust in zip(obs["pedestrians"], obs["trusts"], strict=True):
+    for p, trust, here in zip(obs["pedestrians"], obs["trusts"], obs["present"], strict=True):
+        if not here:
+            continue
         ahead = float((p - np.array([x, y])) @ t)
         if 0.0 < ahead < 25.0:
             v_ref = min(v_ref, 3.0 + 5.0 * trust)
@@ -62,7 +66,8 @@ def main() -> None:
         total += reward
     print(f"{sc.name}: {'goal reached' if terminated else 'time out'} at t = {obs['time'][0]:.1f} s, "
           f"return {total:.1f}, {info['frames']} camera frames")  # fmt: skip
-    for p, d, tr in zip(sc.pedestrians, closest, obs["trusts"], strict=True):
+    held = env.unwrapped.result().trusts[-1]  # the trust held for each pedestrian (scored against the truth)
+    for p, d, tr in zip(sc.pedestrians, closest, held, strict=True):
         print(f"  {p.name:<11} closest {d:.2f} m (R = {sc.control.safety_radius}) final trust {tr:.2f}")
     if args.out:
         import cv2

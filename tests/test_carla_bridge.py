@@ -33,7 +33,7 @@ from trustnav.carla_bridge.frames import (
 )
 from trustnav.carla_bridge.posing import bone_targets, pose_walker
 from trustnav.carla_bridge.session import CarlaError, CarlaOptions, CarlaSession, CarlaUnavailable
-from trustnav.sim.driving.camera import CameraPose, CameraSpec
+from trustnav.geometry.camera import CameraPose, CameraSpec
 from trustnav.sim.driving.world import load_drive_scenario
 
 FRAMES = [MapFrame(), MapFrame(flip_y=True)]

@@ -190,8 +190,9 @@ def test_sigint_to_a_real_run_keeps_csv_and_json(sequences, looking_weights, out
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
-            csv_file = out / "tracks.csv"
-            if csv_file.exists() and len(csv_file.read_text().splitlines()) > 2:
+            # the run writes beside --out until it is done (OutputFolder): its records grow there
+            partial = list(out.parent.glob(f".{out.name}.trustnav-*.partial/tracks.csv"))
+            if partial and len(partial[0].read_text().splitlines()) > 2:
                 break
             time.sleep(0.2)
         proc.send_signal(signal.SIGINT)
@@ -199,9 +200,10 @@ def test_sigint_to_a_real_run_keeps_csv_and_json(sequences, looking_weights, out
     finally:
         proc.kill()
     assert proc.returncode == 130, err
-    rows = _rows(out)
+    rows = _rows(out)  # a new --out: the records so far are moved into place
     assert rows and len((out / "tracks.csv").read_text().splitlines()) == 1 + len(rows)
     assert "Traceback" not in err and "kept" in err.splitlines()[-1]
+    assert not list(out.parent.glob(".*.partial"))
 
 
 # -- 3. a corrupt frame is detected, reported and skipped ----------------------------------------
@@ -338,6 +340,119 @@ def test_bad_fps_leaves_no_folder(tmp_path, scripted, capsys):
     assert main(["estimate", str(img), "--out", str(tmp_path / "o"), "--fps", "0"]) == 2
     _one_clean_line(capsys.readouterr().err)
     assert not (tmp_path / "o").exists()
+
+
+# -- issue 23: nothing lost, nothing mixed (estimate) ------------------------------------------------
+
+
+def _partials(parent: Path) -> list[Path]:
+    return list(parent.glob(".*.partial"))
+
+
+def test_failed_estimate_leaves_nothing_that_blocks_a_rerun(tmp_path, scripted, capfd):
+    (tmp_path / "x.png").write_bytes(b"")  # unreadable: the run fails (exit 1)
+    out = tmp_path / "out"
+    assert main(["estimate", str(tmp_path / "x.png"), "--out", str(out)]) == 1
+    assert not out.exists() and not _partials(tmp_path)  # no header-only tables
+    good = _image(tmp_path / "good.png")
+    assert main(["estimate", str(good), "--out", str(out)]) == 0  # the same --out, no --overwrite
+    assert [r["frame"] for r in _rows(out)] == ["good.png"]
+
+
+def test_estimate_that_raises_leaves_the_earlier_outputs(tmp_path, scripted, monkeypatch, capsys):
+    img = _image(tmp_path / "a.png")
+    out = tmp_path / "out"
+    assert main(["estimate", str(img), "--out", str(out)]) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    import trustnav.viz.annotate
+
+    monkeypatch.setattr(trustnav.viz.annotate, "annotate", broken)
+    assert main(["estimate", str(img), "--out", str(out), "--overwrite"]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert not _partials(tmp_path)
+
+
+def test_interrupted_overwrite_keeps_the_earlier_outputs_and_the_new_records_beside(tmp_path, scripted, capsys):
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for k in range(4):
+        _image(seq / f"f{k}.png", k)
+    out = tmp_path / "out"
+    assert main(["estimate", str(seq), "--out", str(out)]) == 0
+    before = (out / "tracks.json").read_text()
+    scripted.calls, scripted.interrupt_at = 0, 3  # Ctrl-C at the third frame of the rerun
+    assert main(["estimate", str(seq), "--out", str(out), "--overwrite"]) == 130
+    assert (out / "tracks.json").read_text() == before  # the earlier run, whole
+    aside = tmp_path / "out.interrupted"
+    assert [r["frame"] for r in _rows(aside)] == ["f0.png", "f1.png"]
+    err = capsys.readouterr().err
+    assert f"kept 2 records in {aside / 'tracks.csv'}" in err and "keeps the earlier outputs" in err
+    assert not _partials(tmp_path)
+
+
+# -- issue 23: bounds on every number ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [(["drive", "case-1", "--control-rate", "100000"],
+      "--control-rate must be in [1, 200] steps per second, got 100000"),
+     (["drive", "case-1", "--rate", "1e9"], "--rate must be in (0, 60] frames per second, got 1e+09"),
+     (["drive", "case-1", "--rate", "nan"], "--rate must be in (0, 60] frames per second, got nan"),
+     (["drive", "case-1", "--seed", "-1"], "--seed must be an integer >= 0, got -1"),
+     (["drive", "case-1", "--world", "carla", "--port", "0"], "--port must be an integer in [1, 65535], got 0"),
+     (["drive", "case-1", "--world", "carla", "--timeout", "1e6"], "--timeout must be in (0, 600] s, got 1e+06"),
+     (["demo", "--seed", "-1"], "--seed must be an integer >= 0, got -1"),
+     (["estimate", "IMG", "--fps", "1000"], "--fps must be in (0, 240] frames per second, got 1000"),
+     (["estimate", "IMG", "--scan-frames", "0"], "--scan-frames must be an integer in [1, 100], got 0"),
+     (["sweep", "SPEC", "--workers", "0"], "--workers must be an integer in [1, 256], got 0"),
+     (["sweep", "SPEC", "--batch", "100001"], "--batch must be an integer in [1, 10000], got 100001")],
+)  # fmt: skip
+def test_numbers_out_of_range_are_one_line_naming_the_option(tmp_path, scripted, capsys, argv, message):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("name: x\nsweeps: [{name: s, family: random_si, seeds: 1}]\n")
+    img = _image(tmp_path / "a.png")
+    argv = [{"IMG": str(img), "SPEC": str(spec)}.get(a, a) for a in argv]
+    out = tmp_path / "o"
+    assert main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    _one_clean_line(err)
+    assert err.strip() == f"trustnav: error: {message}"
+    assert not out.exists() and not _partials(tmp_path)  # refused before anything was written
+
+
+def test_every_number_option_documents_its_range(capsys):
+    from trustnav.cli import BOUNDS, build_parser
+
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    seen = set()
+    for name, sub in commands.items():
+        for action in sub._actions:
+            if action.type in (int, float):
+                dest = action.dest
+                assert dest in BOUNDS, f"{name} {action.option_strings}: no documented range"
+                _, lo, hi, _, _ = BOUNDS[dest]
+                text = " ".join(action.help.split())
+                assert f"{lo:g}" in text and (hi is None or f"{hi:g}" in text), (name, dest, text)
+                seen.add(dest)
+    assert seen == set(BOUNDS)
+
+
+def test_version_and_help_of_the_perception_benchmark(repo_root, capsys):
+    import trustnav
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"trustnav {trustnav.__version__}"
+    proc = subprocess.run([sys.executable, str(repo_root / "benchmarks" / "perception_eval.py"), "--help"],
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: perception_eval.py") and not proc.stderr
 
 
 def test_scenario_solvers_get_their_own_default_folders_and_reruns_need_overwrite(tmp_path, monkeypatch, capsys):

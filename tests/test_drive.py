@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from trustnav.cli import main
-from trustnav.sim.driving.camera import CameraSpec
+from trustnav.geometry.camera import CameraSpec
 from trustnav.sim.driving.episode import DriveSimulation, run_drive
 from trustnav.sim.driving.sensing import KeypointSensor, hidden_joint_confidences
 from trustnav.sim.driving.world import (
@@ -205,8 +205,18 @@ def test_gym_environment_steps_the_world():
 
     env = gym.make("trustnav/Drive-v0", scenario="case-1", max_episode_steps=400)
     obs, _ = env.reset(seed=3)
-    assert obs["ego"].shape == (4,) and obs["pedestrians"].shape == (2, 2) and obs["trusts"].shape == (2,)
-    assert np.all(obs["trusts"] > 0)  # the frame at t = 0 observed both
+    assert obs["ego"].shape == (4,) and obs["pedestrians"].shape == (8, 2) and obs["trusts"].shape == (8,)
+    # perceived by default: the frame at t = 0 found both, placed near where they stand, with trust
+    assert obs["present"].tolist() == [1, 1, 0, 0, 0, 0, 0, 0]
+    truth = np.array([p.position for p in env.unwrapped.scenario.pedestrians])
+    found = obs["pedestrians"][:2]
+    assert np.sort(np.linalg.norm(found[:, None] - truth[None], axis=2).min(axis=1)).max() < 1.5
+    assert np.all(obs["trusts"][:2] > 0) and np.all(obs["covariances"][:2, 0, 0] > 0)
+    # the world's states on request (no covariance, the scenario's order)
+    true_env = gym.make("trustnav/Drive-v0", scenario="case-1", state="true", max_pedestrians=2)
+    tobs, _ = true_env.reset(seed=3)
+    np.testing.assert_allclose(tobs["pedestrians"], truth)
+    true_env.close()
     total = 0.0
     for _ in range(30):
         obs, reward, terminated, truncated, _info = env.step(np.array([0.0, 1.0], dtype=np.float32))

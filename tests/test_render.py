@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from trustnav.geometry.camera import CameraPose, CameraSpec
 from trustnav.sim.driving.body import (
     ATTENTIVE_LOOK,
     COCO_NAMES,
@@ -16,7 +17,6 @@ from trustnav.sim.driving.body import (
     Appearance,
     pedestrian_skeleton,
 )
-from trustnav.sim.driving.camera import CameraPose, CameraSpec
 
 EGO_YAW = -math.pi / 2  # Case I: the ego drives toward -y
 ATTENTIVE_AT, DISTRACTED_AT = (29.5, 101.0), (37.5, 101.0)

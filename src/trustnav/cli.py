@@ -5,46 +5,215 @@ already holds files is never written into silently. ``--overwrite`` replaces tru
 outputs there (files of other names are left alone); default folders are named after the run
 (scenario and solver, case and sensing) so two different runs never share one; ``demo`` replaces
 its own default folder ``out/demo``, since it is run again and again.
+
+Nothing lost, nothing mixed: a command writes into a temporary sibling of its folder
+(:class:`OutputFolder`) and moves the outputs into place only when the run is done, so an
+interruption (Ctrl-C, SIGTERM) or a failure leaves the earlier outputs as they were and nothing that
+blocks a rerun. Every number an option takes is checked against the range its help text gives
+(:data:`BOUNDS`), with a one-line error naming the option.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import glob
 import json
 import math
+import os
+import secrets
 import shutil
 import signal
 import sys
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["BOUNDS", "OutputFolder", "main"]
 
 ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json")
 SCENARIO_OUTPUTS = ("paper-*.png", "metrics.json")
 DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames", "metrics.json",
                  "attentive", "distracted")  # fmt: skip
 
+#: option -> (type, low, high, low end open, unit): the documented range of every number an option
+#: takes (high None: no upper end). Rates and the CARLA timeout are bounded so that no run takes hours.
+BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
+    "seed": (int, 0, None, False, ""),
+    "rate": (float, 0, 60, True, " frames per second"),
+    "control_rate": (float, 1, 200, False, " steps per second"),
+    "fps": (float, 0, 240, True, " frames per second"),
+    "scan_frames": (int, 1, 100, False, ""),
+    "port": (int, 1, 65535, False, ""),
+    "timeout": (float, 0, 600, True, " s"),
+    "workers": (int, 1, 256, False, ""),
+    "batch": (int, 1, 10000, False, ""),
+}
 
-def prepare_out(out: Path, overwrite: bool, outputs: tuple[str, ...]) -> Path:
-    """Make the output folder ``out``; refuse one that holds files unless ``overwrite``, which
-    first removes trustnav's own ``outputs`` (glob patterns) there and nothing else."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file, expected a folder (new or empty) for the outputs")
-    if out.is_dir() and any(out.iterdir()):
-        if not overwrite:
+
+def _range(dest: str) -> str:
+    """The range of an option as its help text and its error give it: 'in (0, 60] frames per second'."""
+    kind, lo, hi, lo_open, unit = BOUNDS[dest]
+    if hi is None:
+        return f"{'an integer' if kind is int else 'a number'} {'>' if lo_open else '>='} {lo:g}{unit}"
+    if kind is int:
+        return f"an integer in [{lo:g}, {hi:g}]{unit}"
+    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]{unit}"
+
+
+def check_bounds(args: argparse.Namespace, *dests: str) -> None:
+    """Raise ValueError naming the option (``--seed must be an integer >= 0, got -1``) for the first
+    of ``dests`` whose value (None: not given) lies outside :data:`BOUNDS`."""
+    for dest in dests:
+        value = getattr(args, dest, None)
+        if value is None:
+            continue
+        kind, lo, hi, lo_open, _ = BOUNDS[dest]
+        ok = not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
+        ok = ok and (value == int(value) if kind is int else True)
+        ok = ok and (value > lo if lo_open else value >= lo) and (hi is None or value <= hi)
+        if not ok:
+            shown = f"{value:g}" if isinstance(value, float) else repr(value) if isinstance(value, str) else value
+            raise ValueError(f"--{dest.replace('_', '-')} must be {_range(dest)}, got {shown}")
+
+
+# -- output folders written whole or not at all ----------------------------------------------------
+
+_PARTIAL = ".trustnav-{pid}-{token}.partial"
+
+
+@contextlib.contextmanager
+def _no_interrupts() -> Iterator[None]:
+    """Ctrl-C and SIGTERM wait (are ignored) while files are moved into place: a move is never cut short."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        path.unlink()
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+class OutputFolder:
+    """An output folder written whole or not at all.
+
+    Refuses (ValueError, before anything is written) an ``out`` that is a file, or a folder that holds
+    files unless ``overwrite``. The command writes into :attr:`path`, a temporary sibling of ``out``
+    (``.<name>.trustnav-<pid>-<token>.partial``); :meth:`commit` moves the finished outputs into ``out``
+    (trustnav's earlier ``outputs`` there, glob patterns, are replaced; files of other names are left
+    alone), :meth:`discard` removes them. As a context manager it commits on a normal exit and discards
+    on any exception (Ctrl-C included): an interrupted or failed run leaves ``out`` as it was and
+    nothing that blocks a rerun. Temporary folders left by a killed run (its process gone) are removed
+    the next time the same ``out`` is written.
+    """
+
+    def __init__(self, out: str | Path, overwrite: bool, outputs: tuple[str, ...]) -> None:
+        self.out = Path(out)
+        if self.out.exists() and not self.out.is_dir():
+            raise ValueError(f"--out {self.out} is a file, expected a folder (new or empty) for the outputs")
+        if self.out.is_dir() and any(self.out.iterdir()) and not overwrite:
             raise ValueError(
-                f"--out {out} is not empty (outputs of an earlier run?): pass --overwrite to replace "
+                f"--out {self.out} is not empty (outputs of an earlier run?): pass --overwrite to replace "
                 "trustnav's outputs there, or choose a new folder"
             )
-        for pattern in outputs:
-            for old in out.glob(pattern):
-                if old.is_dir() and not old.is_symlink():
-                    shutil.rmtree(old)
-                else:
-                    old.unlink()
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+        self.outputs = outputs
+        self._path: Path | None = None
+        self.state = "new"  # -> open -> committed | discarded | kept aside
+
+    @property
+    def path(self) -> Path:
+        """Where the command writes (the temporary folder, until :meth:`commit`)."""
+        if self._path is None:
+            raise RuntimeError("OutputFolder.path before open()")
+        return self._path
+
+    def has_earlier_outputs(self) -> bool:
+        """Whether ``out`` holds outputs of an earlier run (what :meth:`commit` would replace)."""
+        return self.out.is_dir() and any(any(self.out.glob(p)) for p in self.outputs)
+
+    def final(self, path: Path) -> Path:
+        """Where ``path`` (under :attr:`path`) will be once committed."""
+        return self.out / Path(path).relative_to(self.path)
+
+    def open(self) -> Path:
+        real = self.out.resolve()
+        real.parent.mkdir(parents=True, exist_ok=True)
+        for stale in real.parent.glob(f".{glob.escape(real.name)}{_PARTIAL.format(pid='*', token='*')}"):
+            pid = stale.name[len(real.name) + 1 :].split("-")[1]
+            if pid.isdigit() and not _pid_alive(int(pid)):
+                shutil.rmtree(stale, ignore_errors=True)
+        self._path = real.parent / f".{real.name}{_PARTIAL.format(pid=os.getpid(), token=secrets.token_hex(4))}"
+        self._path.mkdir()
+        self.state = "open"
+        return self._path
+
+    def commit(self) -> Path:
+        """Move the outputs into ``out`` (Ctrl-C waits until they are all there); returns ``out``."""
+        tmp = self.path
+        with _no_interrupts():
+            if not self.out.exists():
+                tmp.rename(self.out.resolve())
+            else:
+                for pattern in self.outputs:
+                    for old in self.out.glob(pattern):
+                        _remove(old)
+                for entry in sorted(tmp.iterdir()):
+                    target = self.out / entry.name
+                    if target.exists() or target.is_symlink():
+                        _remove(target)
+                    shutil.move(entry, target)
+                tmp.rmdir()
+        self.state = "committed"
+        return self.out
+
+    def discard(self) -> None:
+        """Remove what the run wrote; ``out`` stays as it was."""
+        if self._path is not None:
+            with _no_interrupts():
+                shutil.rmtree(self._path, ignore_errors=True)
+        self.state = "discarded"
+
+    def keep_aside(self, suffix: str = "interrupted") -> Path:
+        """Keep what the run wrote beside ``out`` (``<out>.interrupted``, ``-2``... if taken), leaving
+        ``out`` as it was; returns that folder."""
+        real = self.out.resolve()
+        where, k = real.with_name(f"{real.name}.{suffix}"), 2
+        while where.exists():
+            where, k = real.with_name(f"{real.name}.{suffix}-{k}"), k + 1
+        with _no_interrupts():
+            self.path.rename(where)
+        self.state = "kept aside"
+        return self.out.with_name(where.name)
+
+    def __enter__(self) -> OutputFolder:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if self.state == "open":
+            if exc_type is None:
+                self.commit()
+            else:
+                self.discard()
 
 
 def _scenario(args: argparse.Namespace) -> int:
@@ -54,11 +223,12 @@ def _scenario(args: argparse.Namespace) -> int:
 
     make_solver(args.solver)  # refuse an unknown solver before anything is written
     default = f"out/{args.name}" if args.solver == "sqp" else f"out/{args.name}-{args.solver}"
-    out = prepare_out(Path(args.out or default), args.overwrite, SCENARIO_OUTPUTS)
+    folder = OutputFolder(args.out or default, args.overwrite, SCENARIO_OUTPUTS)
     result = run_scenario(args.name, solver=args.solver)
-    fig = plot_scenario(result, out)
-    (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2))
-    print(f"{args.name} ({args.solver}): wrote {fig} and {out / 'metrics.json'}")
+    with folder:
+        fig = folder.final(plot_scenario(result, folder.path))
+        (folder.path / "metrics.json").write_text(json.dumps(result.metrics, indent=2))
+    print(f"{args.name} ({args.solver}): wrote {fig} and {folder.out / 'metrics.json'}")
     _summary(result.metrics)
     return 0
 
@@ -193,72 +363,85 @@ def _estimate(args: argparse.Namespace) -> int:
     from trustnav.viz.annotate import annotate
 
     # everything that can be refused is refused before the output folder is touched
-    if not 0 < args.fps < math.inf:
-        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
-    if args.scan_frames < 1:
-        raise ValueError(f"--scan-frames must be an integer >= 1, got {args.scan_frames}")
+    check_bounds(args, "fps", "scan_frames")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
-    out = prepare_out(Path(args.out), args.overwrite, ESTIMATE_OUTPUTS)
-    kwargs = {"scan_frames": args.scan_frames} if args.backend == "mediapipe" else {}
-    backend = make_backend(args.backend, video=True, **kwargs)
-    sink = _RecordSink(out)
-    images = _Annotations(out, sequences, args.mp4)
-    counts = {"read": 0, "skipped": 0}
-    interrupted = False
-    total = frame_count([f for s in sequences for f in s.files])
-    bar = tqdm(total=total, unit="frame")
+    folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
+    earlier = folder.has_earlier_outputs()
+    with folder:  # written beside --out, moved into place at the end (removed if the run fails)
+        out = folder.path
+        kwargs = {"scan_frames": args.scan_frames} if args.backend == "mediapipe" else {}
+        backend = make_backend(args.backend, video=True, **kwargs)
+        sink = _RecordSink(out)
+        images = _Annotations(out, sequences, args.mp4)
+        counts = {"read": 0, "skipped": 0}
+        interrupted = False
+        total = frame_count([f for s in sequences for f in s.files])
+        bar = tqdm(total=total, unit="frame")
 
-    def report(res) -> None:
-        counts["skipped"] += 1
-        tqdm.write(f"trustnav: skipped frame {res.name}: {res.error}", file=sys.stderr)
+        def report(res) -> None:
+            counts["skipped"] += 1
+            tqdm.write(f"trustnav: skipped frame {res.name}: {res.error}", file=sys.stderr)
 
-    main_thread = threading.current_thread() is threading.main_thread()
-    old_term = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None
-    try:
-        for seq in sequences:
-            fps = source_fps(list(seq.files), args.fps) if seq.has_video else args.fps
-            if hasattr(backend, "reset"):
-                backend.reset()  # nothing followed from the previous sequence
-            pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), eye)
-            images.start(seq, fps)
-            bar.set_description(seq.label[-30:])
-            trust = TrustEstimator(MOVING_AVERAGE_TRUST if args.trust == "moving-average" else PAPER_TRUST)
-            for res in estimate(iter_sequence(seq.files), pipeline, trust, fps, report, seq.label):
-                bar.update(1)
-                if res.error is not None:
-                    continue
-                counts["read"] += 1
-                sink.add(res.records)
-                if not args.no_images:
-                    img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
-                                   [phone_label(tp.phone) for tp in res.people])  # fmt: skip
-                    images.add(res.name, img)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        # the records are saved whatever happens; a second Ctrl-C must not cut this short
-        old_int = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+        main_thread = threading.current_thread() is threading.main_thread()
+        old_term = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None
         try:
-            bar.close()
-            images.close()
-            sink.close()
-            if hasattr(backend, "close"):
-                backend.close()
+            for seq in sequences:
+                fps = source_fps(list(seq.files), args.fps) if seq.has_video else args.fps
+                if hasattr(backend, "reset"):
+                    backend.reset()  # nothing followed from the previous sequence
+                pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), eye)
+                images.start(seq, fps)
+                bar.set_description(seq.label[-30:])
+                trust = TrustEstimator(MOVING_AVERAGE_TRUST if args.trust == "moving-average" else PAPER_TRUST)
+                for res in estimate(iter_sequence(seq.files), pipeline, trust, fps, report, seq.label):
+                    bar.update(1)
+                    if res.error is not None:
+                        continue
+                    counts["read"] += 1
+                    sink.add(res.records)
+                    if not args.no_images:
+                        img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
+                                       [phone_label(tp.phone) for tp in res.people])  # fmt: skip
+                        images.add(res.name, img)
+        except KeyboardInterrupt:
+            interrupted = True
         finally:
-            if main_thread:
-                signal.signal(signal.SIGINT, old_int)
-                signal.signal(signal.SIGTERM, old_term)
-    rows = sink.rows
+            # the records are saved whatever happens; a second Ctrl-C must not cut this short
+            old_int = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+            try:
+                bar.close()
+                images.close()
+                sink.close()
+                if hasattr(backend, "close"):
+                    backend.close()
+            finally:
+                if main_thread:
+                    signal.signal(signal.SIGINT, old_int)
+                    signal.signal(signal.SIGTERM, old_term)
+        rows = sink.rows
+        if interrupted:
+            # the records so far are kept: in --out when it held no earlier outputs, else beside it
+            if not rows:
+                folder.discard()
+                print(f"trustnav: interrupted after {counts['read']} frames; no records, {folder.out} left as it was",
+                      file=sys.stderr)  # fmt: skip
+                return 130
+            if earlier:
+                kept = folder.keep_aside()
+                note = f" ({folder.out} keeps the earlier outputs)"
+            else:
+                kept, note = folder.commit(), ""
+            print(f"trustnav: interrupted after {counts['read']} frames; kept {len(rows)} records in "
+                  f"{kept / 'tracks.csv'} and tracks.json{note}", file=sys.stderr)  # fmt: skip
+            return 130
+        if counts["read"] == 0:
+            folder.discard()  # no header-only tables that would block a rerun
+            print(f"trustnav: error: none of the {counts['skipped']} input frames could be read (see above); "
+                  f"nothing to estimate", file=sys.stderr)  # fmt: skip
+            return 1
+    out = folder.out
     tracks = len({(r["sequence"], r["track_id"]) for r in rows})
-    if interrupted:
-        print(f"trustnav: interrupted after {counts['read']} frames; kept {len(rows)} records in "
-              f"{out / 'tracks.csv'} and tracks.json", file=sys.stderr)  # fmt: skip
-        return 130
-    if counts["read"] == 0:
-        print(f"trustnav: error: none of the {counts['skipped']} input frames could be read (see above); "
-              f"nothing to estimate", file=sys.stderr)  # fmt: skip
-        return 1
     print(f"estimate: {counts['read']} frames in {len(sequences)} sequence{'s' * (len(sequences) > 1)}, "
           f"{len(rows)} records, {tracks} tracks, {counts['skipped']} frames skipped; wrote {out}")  # fmt: skip
     return 0
@@ -275,6 +458,7 @@ def _drive_runs(
     control_rate: float | None = None,
     run_variant: object = None,
     label: str = "",
+    state: str = "perceived",
 ) -> list[tuple[str, dict, Path]]:
     """Run a driving case (Case II: both variants unless one is asked for) and write its outputs.
 
@@ -293,7 +477,7 @@ def _drive_runs(
         try:
             return run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
                              control_rate=control_rate, renderer=renderer, pipeline=pipeline,
-                             progress=progress)  # fmt: skip
+                             progress=progress, state=state)  # fmt: skip
         finally:
             if renderer is not None:
                 renderer.close()
@@ -350,8 +534,16 @@ def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
               f"(p95 {m['solve_ms_p95']:.2f}){extra}  -> {where}")  # fmt: skip
         for p in m["pedestrians"]:
             kind = "attentive" if p["attentive"] else "distracted"
-            print(f"      {p['name']:<11} ({kind:<10}) min distance {p['min_distance']:.2f} m  "
-                  f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}")  # fmt: skip
+            who = p["name"] if kind in p["name"] else f"{p['name']} ({kind})"  # not "attentive (attentive)"
+            loc = ""
+            if p.get("localisation_error_median") is not None:
+                loc = (f"  located to {p['localisation_error_median']:.2f} m (p95 {p['localisation_error_p95']:.2f}), "
+                       f"truth in the 90 % region {p['interval_coverage']:.0%}")  # fmt: skip
+            print(f"      {who:<24} min distance {p['min_distance']:.2f} m  "
+                  f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}{loc}")  # fmt: skip
+        if m.get("state") == "perceived":
+            print(f"      pedestrians perceived by the camera (--state true: the world's); "
+                  f"identity switches {m.get('id_switches', 0)}")  # fmt: skip
 
 
 def _drive(args: argparse.Namespace) -> int:
@@ -359,10 +551,7 @@ def _drive(args: argparse.Namespace) -> int:
 
     if args.case not in DRIVE_SCENARIOS:
         raise ValueError(f"unknown case {args.case!r}: expected one of {', '.join(DRIVE_SCENARIOS)}")
-    if args.rate is not None and not args.rate > 0:
-        raise ValueError(f"--rate must be a positive number of frames per second, got {args.rate}")
-    if args.control_rate is not None and not args.control_rate > 0:
-        raise ValueError(f"--control-rate must be a positive number of steps per second, got {args.control_rate}")
+    check_bounds(args, "seed", "rate", "control_rate", "port", "timeout")
     run_variant, label, on = None, "", ""
     errors: tuple[type[Exception], ...] = ()  # a world's failures that carry their own exit code
     if args.world == "carla":
@@ -379,14 +568,18 @@ def _drive(args: argparse.Namespace) -> int:
     default = f"out/{args.case}" if args.sensing == "render" else f"out/{args.case}-{args.sensing}"
     if args.world == "carla":
         default += "-carla"
-    out = prepare_out(Path(args.out or default), args.overwrite, DRIVE_OUTPUTS)
-    try:
-        done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, out,
-                           video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
-                           label=label)  # fmt: skip
-    except errors as exc:
-        print(f"trustnav: error: {exc}", file=sys.stderr)
-        return int(exc.code)  # type: ignore[attr-defined]
+    folder = OutputFolder(args.out or default, args.overwrite, DRIVE_OUTPUTS)
+    with folder:  # written beside --out, moved into place at the end (removed if the run fails)
+        try:
+            done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, folder.path,
+                               video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
+                               label=label, state=getattr(args, "state", "perceived"))  # fmt: skip
+        except errors as exc:
+            folder.discard()
+            print(f"trustnav: error: {exc}", file=sys.stderr)
+            return int(exc.code)  # type: ignore[attr-defined]
+    out = folder.out
+    done = [(tag, m, folder.final(where)) for tag, m, where in done]
     files = "top_view.png, trust.png, distance.png, drive.mp4, frames/, metrics.json"
     if args.no_video:
         files = files.replace("drive.mp4, ", "")
@@ -401,7 +594,111 @@ def _drive(args: argparse.Namespace) -> int:
 def _sweep(args: argparse.Namespace) -> int:
     from trustnav.campaigns.command import run_sweep_command
 
+    check_bounds(args, "workers", "batch")
     return run_sweep_command(args)
+
+
+#: the trust every pedestrian gets in the demo's trust-blind run: one value for all, as the control
+#: run of the paper's Scenario II (`trustnav scenario paper-2`)
+DEMO_EQUAL_TRUST = 1.0
+
+
+class _EqualTrustWorld:
+    """A drive world whose controller is handed one trust for every pedestrian (trust-blind);
+    perception, trust estimation and the records run as usual. The demo's comparison run: the
+    same world, camera and perception, only the trusts the MPC gets differ."""
+
+    def __init__(self, sim: object, trust: float) -> None:
+        self._sim = sim
+        self._trust = float(trust)
+
+    def observe(self):  # type: ignore[no-untyped-def]
+        import dataclasses
+
+        import numpy as np
+
+        obs = self._sim.observe()  # type: ignore[attr-defined]
+        return dataclasses.replace(obs, trusts=np.full(len(obs.trusts), self._trust))
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._sim, name)
+
+
+def _demo_drive(sc, seed: int, progress=None, equal_trust: float | None = None):  # type: ignore[no-untyped-def]
+    """Case I in render sensing (rendered camera + perception), trust-aware or with
+    ``equal_trust`` for everybody; returns the DriveResult."""
+    from trustnav.sim.driving import make_render_sensing
+    from trustnav.sim.driving.episode import DriveSimulation, drive, make_sensor, prepare_scenario
+
+    renderer, pipeline = make_render_sensing(sc)
+    try:
+        sim = DriveSimulation(prepare_scenario(sc), seed=seed, sensor=make_sensor("render", renderer, pipeline))
+        world = sim if equal_trust is None else _EqualTrustWorld(sim, equal_trust)
+        return drive(world, "render", progress=progress)  # type: ignore[arg-type]
+    finally:
+        renderer.close()
+        if hasattr(pipeline.backend, "close"):
+            pipeline.backend.close()
+
+
+def _demo_comparisons(result, seed: int, where: Path) -> dict[str, dict]:  # type: ignore[no-untyped-def]
+    """The demo's story: Case I again with equal trust (trust-blind, render sensing as the
+    trust-aware run) and trust-aware in keypoint sensing (ideal landmarks); the top view and the
+    distance plot redrawn with them beside the trust-aware run, their metrics added to
+    metrics.json (``equal_trust``, ``keypoints_sensing``). Returns the three runs' metrics."""
+    from tqdm import tqdm
+
+    from trustnav.sim.driving import run_drive
+    from trustnav.viz.drive_plots import plot_distance, plot_top_view
+
+    sc = result.scenario
+    bars: list = []
+
+    def progress(t: float, _d: float) -> None:
+        if not bars:
+            bars.append(tqdm(total=sc.duration, desc=f"case-1 equal trust {DEMO_EQUAL_TRUST:g} (render)", unit="s",
+                             bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]"))  # fmt: skip
+        bars[0].update(t - bars[0].n)
+
+    try:
+        equal = _demo_drive(sc, seed, progress, equal_trust=DEMO_EQUAL_TRUST)
+    finally:
+        for bar in bars:
+            bar.total = bar.n
+            bar.refresh()
+            bar.close()
+    keypoints = run_drive(sc, sensing="keypoints", seed=seed)
+    label = f"equal trust {DEMO_EQUAL_TRUST:g}"
+    plot_top_view(result, where / "top_view.png", comparisons=[(label, equal)],
+                  offset_only=[("trust-aware, keypoint sensing", keypoints)])  # fmt: skip
+    plot_distance(result, where / "distance.png", comparisons=[(label, equal)])
+    runs = {"trust-aware": result.metrics(), "equal_trust": equal.metrics(), "keypoints_sensing": keypoints.metrics()}
+    runs["equal_trust"]["trust_given_to_controller"] = DEMO_EQUAL_TRUST
+    metrics = dict(runs["trust-aware"], equal_trust=runs["equal_trust"], keypoints_sensing=runs["keypoints_sensing"])
+    (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return runs
+
+
+def _demo_headline(runs: dict[str, dict]) -> None:
+    """The demo's numbers: per pedestrian the closest approach and the final trust, the time to
+    goal and the bend, for the trust-aware run, the equal-trust run and keypoint sensing."""
+    cols = [("trust-aware", runs["trust-aware"]), (f"equal trust {DEMO_EQUAL_TRUST:g} (trust-blind)",
+            runs["equal_trust"]), ("trust-aware, keypoint sensing", runs["keypoints_sensing"])]  # fmt: skip
+    m0 = runs["trust-aware"]
+    print(f"headline (Case I, R = {m0.get('safety_radius', 2.5):g} m): closest approach (final trust) per pedestrian")
+    print((f"  {'':<22}" + "".join(f"{name:<32}" for name, _ in cols)).rstrip())
+    for j, p in enumerate(m0["pedestrians"]):
+        cells = []
+        for name, m in cols:
+            q = m["pedestrians"][j]
+            trust = f"{DEMO_EQUAL_TRUST:.2f} fixed" if name.startswith("equal") else f"{q['final_trust']:.2f}"
+            cells.append(f"{q['min_distance']:.2f} m (trust {trust})")
+        print((f"  {p['name']:<22}" + "".join(f"{c:<32}" for c in cells)).rstrip())
+    ttg = ["not reached" if m["time_to_goal"] is None else f"{m['time_to_goal']:.1f} s" for _, m in cols]
+    rows = [("time to goal", ttg), ("bend off the lane", [f"{m['max_lateral_offset']:.2f} m" for _, m in cols]),
+            ("margin violations", [str(m["margin_violations"]) for _, m in cols])]  # fmt: skip
+    for head, cells in rows:
+        print((f"  {head:<22}" + "".join(f"{c:<32}" for c in cells)).rstrip())
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -409,18 +706,33 @@ def _demo(args: argparse.Namespace) -> int:
 
     # the demo is run again and again: its own default folder is replaced (trustnav's outputs only);
     # a folder the user names follows the rule of every command
-    out = prepare_out(Path(args.out or "out/demo"), args.overwrite or args.out is None, DRIVE_OUTPUTS)
+    check_bounds(args, "seed")
+    folder = OutputFolder(args.out or "out/demo", args.overwrite or args.out is None, DRIVE_OUTPUTS)
     t0 = time.perf_counter()
-    done = _drive_runs("case-1", "render", None, args.seed, None, out)
+    kept: list = []  # the trust-aware run, for the comparison
+
+    def trust_aware(sc, _att, progress):  # type: ignore[no-untyped-def]
+        kept.append(_demo_drive(sc, args.seed, progress))
+        return kept[-1]
+
+    runs = None
+    with folder:  # written beside the folder, moved into place at the end: Ctrl-C keeps the earlier demo
+        done = _drive_runs("case-1", "render", None, args.seed, None, folder.path, run_variant=trust_aware)
+        if kept:
+            runs = _demo_comparisons(kept[0], args.seed, folder.path)
+    out = folder.out
+    done = [(tag, m, folder.final(where)) for tag, m, where in done]
     print(f"demo (paper Case I, camera -> perception -> trust -> MPC, {time.perf_counter() - t0:.0f} s): wrote")
     for name in ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames/", "metrics.json"):
         print(f"  {out / name}")
     _drive_summary(done, out)
+    if runs is not None:
+        _demo_headline(runs)
     return 0
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (exit code 2, no usage dump)."""
+    """argparse with a one-line error (exit code 2, no usage dump) that names the option."""
 
     def error(self, message: str):  # type: ignore[override]
         print(f"{self.prog}: error: {message}", file=sys.stderr)
@@ -429,6 +741,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="trustnav", description="Trust-aware safe navigation (MPC-CBF with pedestrian trust).")
+    p.add_argument("--version", action="version", version=f"trustnav {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser(
         "scenario", help="run one of the paper's numerical scenarios and write its figure + metrics.json"
@@ -449,13 +762,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
     e.add_argument("--one-sequence", action="store_true",
                    help="run all inputs as one sequence (one tracker and trust state), in the order given")  # fmt: skip
-    e.add_argument("--fps", type=float, default=10.0, help="frame rate of image sequences (videos: their own)")
+    e.add_argument("--fps", type=float, default=10.0,
+                   help=f"rate of image sequences, {_range('fps')} (default 10; videos: their own)")  # fmt: skip
     e.add_argument("--backend", choices=["mediapipe", "openpifpaf", "yolo"], default="mediapipe")
     e.add_argument(
         "--scan-frames",
         type=int,
         default=1,
-        help="mediapipe: share the tiled search over N frames (faster, fewer found)",
+        help=f"mediapipe: share the tiled search over N frames, {_range('scan_frames')} (faster, fewer found)",
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
     e.add_argument("--trust", choices=["paper", "moving-average"], default="paper",
@@ -471,42 +785,59 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("case", help="case-1 (attentive + distracted standing) or case-2 (one walking pedestrian)")
     d.add_argument("--sensing", choices=["render", "keypoints"], default="render",
                    help="render: rendered frames + perception (default); keypoints: projected joints")  # fmt: skip
+    d.add_argument("--state", choices=["perceived", "true"], default="perceived",
+                   help="where the controller's pedestrian positions and velocities come from: perceived "
+                   "(default: the camera, localised and tracked, with uncertainty) or true (the world's)")  # fmt: skip
     g = d.add_mutually_exclusive_group()
     g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
                    help="every pedestrian attentive")  # fmt: skip
     g.add_argument("--distracted", dest="attentive", action="store_const", const=False,
                    help="every pedestrian distracted")  # fmt: skip
-    d.add_argument("--seed", type=int, default=0, help="seed of sensing noise (default 0)")
-    d.add_argument("--rate", type=float, help="camera frames per second = trust-estimation rate (default: scenario, 1)")
-    d.add_argument("--control-rate", type=float, help="controller steps per second (default: scenario, 20)")
+    d.add_argument("--seed", type=int, default=0, help=f"seed of sensing noise, {_range('seed')} (default 0)")
+    d.add_argument("--rate", type=float, help="camera rate = trust-estimation rate, "
+                   f"{_range('rate')} (default: scenario, 1)")  # fmt: skip
+    d.add_argument("--control-rate", type=float,
+                   help=f"controller rate, {_range('control_rate')} (default: scenario, 20)")  # fmt: skip
     d.add_argument("--out", help="output directory (default out/<case>, out/<case>-keypoints)")
     d.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
     d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
     d.add_argument("--world", choices=["sim", "carla"], default="sim",
                    help="sim: own world (default); carla: a CARLA server (extra trustnav[carla])")  # fmt: skip
     d.add_argument("--host", default="localhost", help="CARLA server host (--world carla)")
-    d.add_argument("--port", type=int, default=2000, help="CARLA server port (--world carla)")
-    d.add_argument("--timeout", type=float, default=10.0, help="CARLA connection timeout in seconds (--world carla)")
+    d.add_argument("--port", type=int, default=2000, help=f"CARLA server port, {_range('port')} (--world carla)")
+    d.add_argument("--timeout", type=float, default=10.0,
+                   help=f"CARLA connection timeout, {_range('timeout')} (default 10; --world carla)")  # fmt: skip
     d.set_defaults(func=_drive)
     w = sub.add_parser("sweep", help="a campaign of closed-loop episodes on Dask (records, summary, plots)")
     w.add_argument("spec", help="campaign spec (YAML or TOML)")
-    w.add_argument("--out", required=True, help="output directory (records are appended; a rerun resumes)")
+    w.add_argument("--out", required=True, help="output directory: new, empty or this campaign's own (records are "
+                   "appended; a rerun resumes; a folder of another campaign or of other files is refused)")  # fmt: skip
     w.add_argument("--scheduler", help="address of a running Dask scheduler (default: a LocalCluster)")
-    w.add_argument("--workers", type=int, help="LocalCluster workers (default: the machine's cores)")
-    w.add_argument("--batch", type=int, help="episodes per Dask task (default: the spec's batch, else auto)")
+    w.add_argument("--workers", type=int,
+                   help=f"LocalCluster workers, {_range('workers')} (default: the machine's cores)")  # fmt: skip
+    w.add_argument("--batch", type=int,
+                   help=f"episodes per Dask task, {_range('batch')} (default: the spec's, else auto)")  # fmt: skip
     w.add_argument("--retry-failed", action="store_true", help="run recorded failed episodes again")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
     w.set_defaults(func=_sweep)
-    m = sub.add_parser("demo", help="paper Case I end to end in render mode; prints where the outputs are")
+    m = sub.add_parser("demo", help="paper Case I end to end in render mode, beside the same drive with equal "
+                       "trust; prints the headline numbers and where the outputs are")  # fmt: skip
     m.add_argument("--out", help="output directory (default out/demo, replaced on every run)")
     m.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
-    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--seed", type=int, default=0, help=f"seed of sensing noise, {_range('seed')} (default 0)")
     m.set_defaults(func=_demo)
     return p
 
 
+def _version() -> str:
+    """The package's version (``trustnav.__version__``; the package is loaded with this module)."""
+    return str(getattr(sys.modules.get("trustnav"), "__version__", "unknown"))
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    main_thread = threading.current_thread() is threading.main_thread()
+    old_term = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None  # `timeout`, `kill`
     try:
         return int(args.func(args) or 0)
     except (ValueError, ImportError) as exc:
@@ -518,8 +849,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"trustnav: error: {text}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("trustnav: interrupted", file=sys.stderr)
+        print("trustnav: interrupted; earlier outputs are as they were", file=sys.stderr)
         return 130
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, old_term)
 
 
 def _one_line(exc: BaseException) -> str:

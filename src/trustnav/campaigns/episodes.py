@@ -131,8 +131,9 @@ def _drive(task: EpisodeTask) -> dict[str, Any]:
 
     p = task.params
     sc = load_drive_scenario(p["scenario"])
-    ctl = {k: p[k] for k in ("horizon", "safety_radius", "deadline") if k in p}
-    sens = {k: p[k] for k in ("pixel_noise", "dropout", "miss_rate", "position_noise", "velocity_noise") if k in p}
+    ctl = {k: p[k] for k in ("horizon", "safety_radius", "deadline", "confidence") if k in p}
+    sens_keys = ("pixel_noise", "dropout", "miss_rate", "position_noise", "velocity_noise", "pitch_sigma_deg")
+    sens = {k: p[k] for k in sens_keys if k in p}
     sc = replace(
         sc,
         control=replace(sc.control, gamma=_gamma(sc.control.gamma, p), **ctl),
@@ -145,6 +146,7 @@ def _drive(task: EpisodeTask) -> dict[str, Any]:
         attentive=p.get("attentive"),
         capture_rate=p.get("capture_rate"),
         control_rate=p.get("control_rate"),
+        state=p.get("state", "perceived"),
     )
     assert r.episode is not None
     m = drive_metrics(r)

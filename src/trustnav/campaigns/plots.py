@@ -1,7 +1,11 @@
 """Campaign figures: minimum distance vs trust, and violation / infeasibility rates vs horizon and
 vs every swept numeric parameter (gamma_ini, delta, lambda of `weight`, trust, ...).
 
-One PNG per sweep and question under ``figures/``; rates carry Wilson 95 % intervals.
+One PNG per sweep and question under ``figures/``; rates carry Wilson 95 % intervals. The figures
+look like every trustnav figure (:mod:`trustnav.viz.style`: fonts, sizes, legends inside the axes,
+integer ticks for integer parameters); campaigns may not import ``trustnav.viz``
+(docs/architecture.md), so the style's values are repeated here and ``tests/test_viz_style.py``
+checks that they are equal.
 """
 
 from __future__ import annotations
@@ -19,15 +23,62 @@ from trustnav.campaigns.summary import TRUST_BANDS, wilson
 
 __all__ = ["write_figures"]
 
+# == trustnav.viz.style.DPI / RC (checked by tests/test_viz_style.py)
+DPI = 130
+RC: dict[str, Any] = {
+    "font.family": "DejaVu Sans",
+    "font.size": 9.0,
+    "axes.titlesize": 10.0,
+    "axes.labelsize": 9.0,
+    "xtick.labelsize": 8.0,
+    "ytick.labelsize": 8.0,
+    "legend.fontsize": 8.0,
+    "legend.framealpha": 0.9,
+    "legend.edgecolor": "0.8",
+    "figure.titlesize": 10.0,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "grid.linewidth": 0.6,
+    "lines.linewidth": 1.6,
+    "figure.dpi": DPI,
+    "savefig.dpi": DPI,
+}
+
 
 def _figure(figsize: tuple[float, float], ncols: int = 1) -> tuple[Any, Any]:
-    """A Figure on its own Agg canvas and its Axes (no pyplot state, no global backend switch)."""
+    """A Figure on its own Agg canvas with constrained layout (nothing cut off) and its Axes (no
+    pyplot state, no global backend switch). Call it inside ``matplotlib.rc_context(RC)``."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=figsize, dpi=120)
+    fig = Figure(figsize=figsize, dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     return fig, fig.subplots(1, ncols)
+
+
+def _param_ticks(axis: Any, xs: Sequence[float], kind: str) -> None:
+    """Ticks of a swept parameter: "bool" at 0 / 1 labelled no / yes, "int" at the values (or at
+    integers when there are many), else matplotlib's."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, MaxNLocator
+
+    if kind == "bool":
+        axis.set_major_locator(FixedLocator([0.0, 1.0]))
+        axis.set_major_formatter(FuncFormatter(lambda v, _p: {0.0: "no", 1.0: "yes"}.get(v, "")))
+    elif kind == "int":
+        if len(xs) <= 12:
+            axis.set_major_locator(FixedLocator(sorted(xs)))
+            axis.set_major_formatter(FuncFormatter(lambda v, _p: f"{v:.0f}"))
+        else:
+            axis.set_major_locator(MaxNLocator(integer=True))
+
+
+def _kind(values: Sequence[Any]) -> str:
+    """ "bool", "int" (integers, also as floats like 4.0) or "float" for a parameter's values."""
+    if values and all(isinstance(v, bool) for v in values):
+        return "bool"
+    if values and all(isinstance(v, int | float) and float(v).is_integer() for v in values):
+        return "int"
+    return "float"
 
 
 def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: Path) -> bool:
@@ -68,17 +119,19 @@ def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: P
     top = np.percentile(d, 98) if d.size > 20 else d.max()
     ax.set_ylim(0, max(top * 1.1, (radius or 0) * 1.5))
     ax.set_xlim(-0.02, 1.02)
-    ax.set_xlabel("trust of the pedestrian")
+    ax.set_xlabel("trust of the pedestrian (0 to 1)")
     ax.set_ylabel("minimum distance to it (m)")
-    ax.set_title(f"{name}: closest approach vs trust ({len(t)} pedestrians, {len(recs)} episodes)", fontsize=9)
-    ax.legend(fontsize=7, loc="best")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path)
+    ax.set_title(f"{name}: closest approach vs trust ({len(t)} pedestrians, {len(recs)} episodes)")
+    ax.legend(loc="best", frameon=True)
+    fig.savefig(path, dpi=DPI)
     return True
 
 
-def _rates_vs(name: str, label: str, groups: Mapping[float, Sequence[Mapping[str, Any]]], path: Path) -> bool:
+def _rates_vs(
+    name: str, label: str, groups: Mapping[float, Sequence[Mapping[str, Any]]], path: Path, kind: str = "float"
+) -> bool:
+    """Violation and infeasibility rates, and the closest approach, per value of a parameter
+    (``kind``: "int", "bool" or "float", for the ticks)."""
     xs = sorted(groups)
     if len(xs) < 2:
         return False
@@ -96,13 +149,12 @@ def _rates_vs(name: str, label: str, groups: Mapping[float, Sequence[Mapping[str
             rates.append(p)
             err_lo.append(max(0.0, p - ci[0]))
             err_hi.append(max(0.0, ci[1] - p))
-        dodge = (xs[-1] - xs[0]) * (0.006 if key == "breach" else -0.006)  # both series visible where equal
+        dodge = (xs[-1] - xs[0]) * (0.008 if key == "breach" else -0.008)  # both series visible where equal
         ax.errorbar(np.add(xs, dodge), rates, yerr=[err_lo, err_hi], fmt="o-", color=color, capsize=3, label=text)
     ax.set_xlabel(label)
     ax.set_ylabel("share of episodes (95 % CI)")
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
+    ax.legend(loc="best", frameon=True)
     med, p05 = [], []
     for x in xs:
         md = [r["min_distance"] for r in groups[x] if r.get("status") == "ok" and r.get("min_distance") is not None]
@@ -128,17 +180,24 @@ def _rates_vs(name: str, label: str, groups: Mapping[float, Sequence[Mapping[str
         ax2.axhline(radius, color="tab:red", ls="--", lw=1, label=f"R = {radius:g} m")
     ax2.set_xlabel(label)
     ax2.set_ylabel("minimum distance (m)")
-    ax2.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    ax2.grid(alpha=0.3)
+    ax2.legend(loc="best", frameon=True, fontsize=7)
+    for a in (ax, ax2):
+        _param_ticks(a.xaxis, xs, kind)
     n = sum(len(g) for g in groups.values())
-    fig.suptitle(f"{name}: rates and closest approach vs {label} ({n} episodes)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path)
+    fig.suptitle(f"{name}: rates and closest approach vs {label} ({n} episodes)")
+    fig.savefig(path, dpi=DPI)
     return True
 
 
 def write_figures(spec: CampaignSpec, records: Sequence[Mapping[str, Any]], out: str | Path) -> list[Path]:
     """Write the figures of every sweep under ``out/figures``; return their paths."""
+    from matplotlib import rc_context
+
+    with rc_context(RC):
+        return _write_figures(spec, records, out)
+
+
+def _write_figures(spec: CampaignSpec, records: Sequence[Mapping[str, Any]], out: str | Path) -> list[Path]:
     fig_dir = Path(out) / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     keys = {t.key for t in spec.tasks()}
@@ -158,15 +217,17 @@ def write_figures(spec: CampaignSpec, records: Sequence[Mapping[str, Any]], out:
             if h is not None:
                 by_h[float(h)].append(r)
         path = fig_dir / f"{s.name}_rates_vs_horizon.png"
-        if _rates_vs(s.name, "horizon N_h", by_h, path):
+        if _rates_vs(s.name, "horizon N_h (steps)", by_h, path, "int"):
             written.append(path)
         for pname in sorted(swept - {"horizon"}):
             groups: dict[float, list[Mapping[str, Any]]] = defaultdict(list)
+            values = []
             for r in recs:
                 v = r["params"].get(pname)
                 if isinstance(v, int | float):  # bools (attentive) as 0 / 1
                     groups[float(v)].append(r)
+                    values.append(v)
             path = fig_dir / f"{s.name}_rates_vs_{pname}.png"
-            if _rates_vs(s.name, pname, groups, path):
+            if _rates_vs(s.name, pname, groups, path, _kind(values)):
                 written.append(path)
     return written

@@ -11,7 +11,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -24,7 +26,11 @@ from trustnav.campaigns.episodes import OUTCOME_FIELDS, record_head, run_batch
 from trustnav.campaigns.records import RecordStore
 from trustnav.campaigns.spec import CampaignSpec, EpisodeTask
 
-__all__ = ["RunReport", "auto_batch", "dask_client", "run_campaign"]
+__all__ = ["CAMPAIGN_FILES", "CampaignFolderError", "RunReport", "auto_batch", "check_campaign_folder", "dask_client",
+           "run_campaign"]  # fmt: skip
+
+#: What a campaign folder holds (``spec.json`` names its campaign).
+CAMPAIGN_FILES = ("spec.json", "spec.json.part", "records.jsonl", "runs.jsonl", "summary.json", "summary.md", "figures")
 
 #: Environment of LocalCluster worker processes: one BLAS / numba thread each (no oversubscription).
 WORKER_ENV = {
@@ -61,6 +67,35 @@ def _default_workers() -> int:
 
 
 @contextmanager
+def _sigint_held() -> Iterator[None]:
+    """Ctrl-C held back while a LocalCluster starts (main thread; elsewhere nothing changes).
+
+    SIGINT is blocked in this thread, so the event-loop thread the cluster starts, and every worker
+    process started from it (restarts included), inherit the block: a Ctrl-C at the terminal reaches
+    the whole process group, and only this process acts on it (cancels, closes the cluster) instead
+    of every worker printing a traceback. A Ctrl-C meanwhile is not lost: it is raised (as
+    KeyboardInterrupt) when the cluster is up.
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    # started now, not from the cluster's event-loop thread: starting it unblocks SIGINT in its thread
+    resource_tracker.ensure_running()
+    caught: list[int] = []
+    old_handler = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old_handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)  # a pending Ctrl-C is delivered here
+    if caught:
+        raise KeyboardInterrupt
+
+
+@contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
     """A connected :class:`distributed.Client`; closes it (and the LocalCluster it made) on exit.
 
@@ -76,17 +111,21 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             client = Client(scheduler)
         else:
             n = workers or _default_workers()
-            cluster = LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                dashboard_address=None,
-                # no dashboard; the scheduler's small HTTP server on a free loopback port (not 8787)
-                scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
-                silence_logs=logging.ERROR,
-                env=WORKER_ENV,
-            )
+            # the worker processes never see a Ctrl-C meant for this command (see _sigint_held)
+            with _sigint_held():
+                cluster = LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    # no dashboard; the scheduler's small HTTP server on a free loopback port (not 8787)
+                    scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+                    # quiet workers: an episode's error is in its record, a lost task's in its failed records;
+                    # what Dask itself logs as errors are the heartbeats of busy workers cut off by a close
+                    silence_logs=logging.CRITICAL,
+                    env=WORKER_ENV,
+                )
             client = Client(cluster)
         yield client
     finally:
@@ -115,6 +154,58 @@ def _lost(task: EpisodeTask, exc: BaseException) -> dict[str, Any]:
     return rec
 
 
+class CampaignFolderError(ValueError):
+    """An output folder that holds another campaign or files that are not a campaign's."""
+
+
+def _listing(names: list[str], most: int = 3) -> str:
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
+def check_campaign_folder(spec: CampaignSpec, out: str | Path) -> None:
+    """Refuse (:class:`CampaignFolderError`, one line naming the folder and what it holds) a campaign
+    folder ``out`` that is a file, holds another campaign (its ``spec.json`` names another campaign) or
+    holds files that are not a campaign's. New, empty and ``spec``'s own folders pass: a campaign
+    resumes only into its own folder (same name; a grown spec counts as the same campaign)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise CampaignFolderError(f"--out {out} is a file, expected a folder for campaign {spec.name!r}")
+    if not out.is_dir():
+        return
+    names = sorted(p.name for p in out.iterdir())
+    if not names:
+        return
+    spec_file = out / "spec.json"
+    if spec_file.is_file():
+        try:
+            doc = json.loads(spec_file.read_text())
+            theirs = doc.get("name") if isinstance(doc, dict) else None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            theirs = None
+        if not isinstance(theirs, str):
+            raise CampaignFolderError(
+                f"--out {out} holds a spec.json that is not a trustnav campaign's: choose another folder "
+                f"for campaign {spec.name!r}"
+            )
+        if theirs != spec.name:
+            n = sum(1 for _ in RecordStore(out / "records.jsonl"))
+            raise CampaignFolderError(
+                f"--out {out} holds campaign {theirs!r} ({n} records), not {spec.name!r}: a folder resumes only "
+                "its own campaign; choose another folder"
+            )
+        return
+    foreign = [n for n in names if n not in CAMPAIGN_FILES]
+    if foreign:
+        raise CampaignFolderError(
+            f"--out {out} holds {len(foreign)} files that are not a campaign's ({_listing(foreign)}): choose a "
+            f"new or empty folder for campaign {spec.name!r}"
+        )
+    raise CampaignFolderError(
+        f"--out {out} holds campaign files ({_listing(names)}) but no spec.json naming their campaign: choose a "
+        f"new or empty folder for campaign {spec.name!r}"
+    )
+
+
 def _write_spec(spec: CampaignSpec, out: Path) -> None:
     doc = {
         "name": spec.name,
@@ -124,7 +215,9 @@ def _write_spec(spec: CampaignSpec, out: Path) -> None:
             for p in spec.points()
         ],
     }
-    (out / "spec.json").write_text(json.dumps(doc, indent=2, default=str) + "\n")
+    tmp = out / "spec.json.part"
+    tmp.write_text(json.dumps(doc, indent=2, default=str) + "\n")
+    tmp.replace(out / "spec.json")  # whole or not at all: it names the campaign of the folder
 
 
 def run_campaign(
@@ -142,8 +235,10 @@ def run_campaign(
     ``retry_failed`` runs failed episodes again (their new record replaces the old); ``batch``
     overrides the spec's episodes per task. Writes ``spec.json`` (the spec and its points) and
     appends to ``records.jsonl``; the summary is :func:`trustnav.campaigns.summary.write_outputs`.
+    A folder of another campaign or of other files is refused first (:func:`check_campaign_folder`).
     """
     out = Path(out)
+    check_campaign_folder(spec, out)
     out.mkdir(parents=True, exist_ok=True)
     _write_spec(spec, out)
     store = RecordStore(out / "records.jsonl")

@@ -207,6 +207,9 @@ PARAMS: dict[str, dict[str, Callable[[Any], Any]]] = {
         "position_noise": _num(0.0, 100.0, what=" m"),
         "velocity_noise": _num(0.0, 100.0, what=" m/s"),
         "deadline": _num(0.0, 3600.0, lo_open=True, what=" s"),
+        "state": _choice("perceived", "true"),
+        "pitch_sigma_deg": _num(0.0, 20.0, what=" deg"),
+        "confidence": _num(0.5, 0.999),
         **_GAMMA,
     },
 }

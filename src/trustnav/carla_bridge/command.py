@@ -71,7 +71,7 @@ def _run_variant(
         return run_carla_drive_episode(
             carla, sc, options, sensing=args.sensing, seed=args.seed, attentive=attentive,
             capture_rate=args.rate, control_rate=args.control_rate, pipeline=pipeline, progress=progress,
-            on_session=report,
+            on_session=report, state=getattr(args, "state", "perceived"),
         )  # fmt: skip
     finally:
         if pipeline is not None and hasattr(pipeline.backend, "close"):

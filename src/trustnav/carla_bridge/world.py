@@ -34,8 +34,8 @@ from trustnav.carla_bridge.control import max_steer_angle, to_vehicle_command
 from trustnav.carla_bridge.frames import bgra_to_rgb, carla_to_physical, physical_yaw
 from trustnav.carla_bridge.posing import pose_walker
 from trustnav.carla_bridge.session import CarlaError, CarlaOptions, CarlaSession
+from trustnav.geometry.camera import CameraPose, CameraSpec
 from trustnav.sim.driving import body
-from trustnav.sim.driving.camera import CameraPose, CameraSpec
 from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive, make_sensor, prepare_scenario
 from trustnav.sim.driving.world import DriveScenario
 
@@ -71,6 +71,12 @@ class CarlaWorld:
     @property
     def time(self) -> float:
         return self.ticks * self.delta
+
+    @property
+    def camera_to_scenario(self) -> NDArray[np.float64]:
+        """Ground points of the camera's (physical, right-handed) frame -> scenario coordinates:
+        y is negated unless the map frame flips it already."""
+        return np.diag([1.0, -self.frame.sign])
 
     def ego_state(self) -> NDArray[np.float64]:
         v = self.session.vehicle
@@ -193,10 +199,13 @@ def carla_scenario(
     control_rate: float | None = None,
 ) -> DriveScenario:
     """The scenario as driven on CARLA: behaviour and control rate as asked, the camera's field of
-    view as CARLA's camera is set (``options.fov_deg``, default the scenario's)."""
+    view as CARLA's camera is set (``options.fov_deg``, default the scenario's); CARLA's car body
+    pitches when it brakes, so the localiser's pitch uncertainty is at least 0.5 deg."""
     sc = prepare_scenario(scenario, attentive, control_rate)
     if options.fov_deg is not None:
         sc = replace(sc, camera=replace(sc.camera, fov_deg=float(options.fov_deg)))
+    if sc.sensing.pitch_sigma_deg < 0.5:
+        sc = replace(sc, sensing=replace(sc.sensing, pitch_sigma_deg=0.5))
     return sc
 
 
@@ -212,9 +221,12 @@ def run_carla_drive_episode(
     pipeline: Any = None,
     progress: Callable[[float, float], None] | None = None,
     on_session: Callable[[CarlaSession], None] | None = None,
+    state: str = "perceived",
 ) -> DriveResult:
     """One drive of ``scenario`` on the CARLA server of ``options``: the trust-aware MPC, the trust
     memory and the metrics of ``trustnav drive``. ``render`` sensing needs a perception ``pipeline``.
+    ``state``: "perceived" (the controller's pedestrians from CARLA's camera frames through the same
+    localiser and tracker as ``trustnav drive``) or "true" (CARLA's walker states).
     The session is closed (settings restored, actors destroyed) however this returns or raises.
     ``on_session`` is called with the open session (e.g. to report the town)."""
     sc = carla_scenario(scenario, options, attentive, control_rate)
@@ -225,7 +237,7 @@ def run_carla_drive_episode(
             on_session(session)
         world = CarlaWorld(session, sc.camera)
         sensor = make_sensor(sensing, CarlaCamera(world) if sensing == "render" else None, pipeline)
-        sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, world=world)
+        sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, world=world, state=state)
         return drive(sim, sensing, progress=progress)
 
 

@@ -27,7 +27,8 @@ INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
 @njit(cache=True, fastmath=False)
 def cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, stride, a_mat, bl, bu, g, nsimple):
     """Pedestrian CBF rows of `cbf_imp` (barrier `h_quad`) from ego positions pos (N+1, 2) and
-    their sensitivities sens (N+1, 2, n): row k * stride + j for pedestrian j at step k."""
+    their sensitivities sens (N+1, 2, n): row k * stride + j for pedestrian j at step k, with
+    r2[j] = R_j^2 (R, or R tightened by the pedestrian's position uncertainty)."""
     n_h = pos.shape[0] - 1
     n_p = peds.shape[0]
     n = sens.shape[2]
@@ -47,7 +48,7 @@ def cbf_fill(pos, sens, peds, vels, omg, r2, dt, timing, stride, a_mat, bl, bu, 
             dky = pos[k, 1] - qky
             w = omg[j]
             r = k * stride + j
-            val = h_quad(dnx, dny, r2) - w * h_quad(dkx, dky, r2)
+            val = h_quad(dnx, dny, r2[j]) - w * h_quad(dkx, dky, r2[j])
             g[r] = val
             for i in range(n):  # gradient of h_quad: 2 (x_e - x_j)
                 a_mat[r, i] = 2.0 * (dnx * sens[k + 1, 0, i] + dny * sens[k + 1, 1, i]) - 2.0 * w * (

@@ -11,6 +11,7 @@ from the values and state Jacobians the barrier returns, vectorised over the hor
 
 from __future__ import annotations
 
+from statistics import NormalDist
 from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
@@ -29,6 +30,7 @@ __all__ = [
     "continuous_time_radius",
     "h_quad",
     "predict_pedestrians",
+    "uncertainty_margins",
 ]
 
 #: Where the pedestrian is taken in the h(k+1) term of `cbf_imp`:
@@ -106,19 +108,20 @@ def cbf_rows(
     pedestrians: ArrayLike,
     velocities: ArrayLike,
     one_minus_gamma: ArrayLike,
-    radius: float,
+    radius: float | ArrayLike,
     dt: float,
     timing: Timing = "paper",
 ) -> NDArray[np.float64]:
     """Values of the N_h x N_p rows of `cbf_imp`, >= 0 when satisfied.
 
-    row[k, j] = phi(x_e(k+1), x_j(k+1 or k)) - (1 - gamma_j) phi(x_e(k), x_j(k)).
+    row[k, j] = phi(x_e(k+1), x_j(k+1 or k)) - (1 - gamma_j) phi(x_e(k), x_j(k)); ``radius`` is R,
+    or one R_j per pedestrian.
     """
     pos = np.asarray(ego_positions, dtype=float)
     n = pos.shape[0] - 1
     q = predict_pedestrians(pedestrians, velocities, n, dt)
     q_next = q[1:] if timing == "paper" else q[:-1]
-    r2 = float(radius) ** 2
+    r2 = np.broadcast_to(np.asarray(radius, dtype=float) ** 2, (q.shape[1],))
     d_now = pos[:-1, None] - q[:-1]
     d_next = pos[1:, None] - q_next
     h_now = h_quad(d_now[..., 0], d_now[..., 1], r2)
@@ -132,19 +135,19 @@ class PedestrianBarrier:
 
     The controller sets its data at every step from the pedestrians it is given; the problem
     fills its rows with a compiled kernel. ``values`` is the same barrier through the
-    :class:`Barrier` protocol (reference path, tests)."""
+    :class:`Barrier` protocol (reference path, tests). ``radius``: R, or R_j per pedestrian."""
 
     def __init__(
         self,
         positions: ArrayLike,
         velocities: ArrayLike,
         one_minus_gamma: ArrayLike,
-        radius: float,
+        radius: float | ArrayLike,
     ) -> None:
         self.positions = np.asarray(positions, dtype=float).reshape(-1, 2)
         self.velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
         self._decay = np.asarray(one_minus_gamma, dtype=float).reshape(-1)
-        self.r2 = float(radius) ** 2
+        self.r2 = np.broadcast_to(np.asarray(radius, dtype=float) ** 2, (self.positions.shape[0],)).copy()
 
     def size(self) -> int:
         return self.positions.shape[0]
@@ -161,3 +164,49 @@ class PedestrianBarrier:
         grad = np.zeros((*h.shape, states.shape[1]))
         grad[..., :2] = 2.0 * d
         return h, grad
+
+
+def uncertainty_margins(
+    ego: ArrayLike,
+    positions: ArrayLike,
+    covariances: ArrayLike,
+    lead_time: float,
+    confidence: float,
+) -> NDArray[np.float64]:
+    """Per-pedestrian margins (m) added to R for estimated pedestrian states (measurement-robust
+    `h_quad`).
+
+    ``covariances`` (N, 4, 4) of (x, y, v_x, v_y), or (N, 2, 2) of the position only. The position
+    error of pedestrian j, predicted ``lead_time`` seconds ahead at constant velocity (the
+    horizon plus the latency), has covariance S_j = P_pp + T (P_pv + P_vp) + T^2 P_vv. Only its
+    component along the line of approach n_j (unit, pedestrian -> ego) moves the true distance to
+    first order, so with probability ``confidence`` the true distance is at least the estimated
+    one minus z sqrt(n_j' S_j n_j), z the one-sided normal quantile; keeping the estimated
+    distance >= R + that margin keeps the true one >= R (chance-constrained CBF; the
+    measurement-robust CBF of Dean et al., CoRL 2020, tightens h by the error bound times
+    ||grad h|| = 2 d, the same to first order). At the ego's own position (no direction) the
+    largest eigenvalue of S_j is used.
+    """
+    if not 0.5 <= confidence < 1.0:
+        raise ValueError(f"confidence must be in [0.5, 1), got {confidence!r}")
+    if not (np.isfinite(lead_time) and lead_time >= 0):
+        raise ValueError(f"lead_time must be a finite number of seconds >= 0, got {lead_time!r}")
+    e = np.asarray(ego, dtype=float).reshape(-1)[:2]
+    p = np.asarray(positions, dtype=float).reshape(-1, 2)
+    c = np.asarray(covariances, dtype=float)
+    n_p = p.shape[0]
+    if c.shape not in ((n_p, 4, 4), (n_p, 2, 2)) or not np.all(np.isfinite(c)):
+        raise ValueError(f"covariances must be finite, shape ({n_p}, 4, 4) or ({n_p}, 2, 2), got shape {c.shape}")
+    s = c[:, :2, :2].copy()
+    if c.shape[1] == 4:
+        t = float(lead_time)
+        s += t * (c[:, :2, 2:] + c[:, 2:, :2]) + t * t * c[:, 2:, 2:]
+    s = 0.5 * (s + np.transpose(s, (0, 2, 1)))
+    d = e[None] - p
+    dist = np.linalg.norm(d, axis=1)
+    var = np.linalg.eigvalsh(s)[:, -1] if n_p else np.zeros(0)
+    ok = dist > 1e-9
+    n = d[ok] / dist[ok, None]
+    var[ok] = np.einsum("ni,nij,nj->n", n, s[ok], n)
+    z = NormalDist().inv_cdf(confidence)
+    return z * np.sqrt(np.maximum(var, 0.0))

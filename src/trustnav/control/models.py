@@ -227,7 +227,7 @@ class SingleIntegrator(DynamicsModel):
         if p.n_p == 0:
             return False
         c = p.config
-        r2 = c.safety_radius**2
+        r2 = p.r2
         lo, hi = c.dt * p.ulo, c.dt * p.uhi  # the box of p (ego at the origin)
         q_next = p.peds + c.dt * p.vels if p.timing_code == 0 else p.peds
         h0 = h_quad(p.peds[:, 0], p.peds[:, 1], r2)

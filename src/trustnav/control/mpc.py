@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control.barrier import Barrier
+from trustnav.control.barrier import Barrier, uncertainty_margins
 from trustnav.control.costs import Cost
 from trustnav.control.models import Dynamics
 from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians
@@ -164,17 +164,27 @@ class MpcController:
         velocities: ArrayLike | None,
         trusts: ArrayLike,
         time: float | None = None,
+        covariances: ArrayLike | None = None,
     ) -> MpcSolution:
         """One MPC step from ego ``state`` with pedestrians (N_p, 2), velocities (N_p, 2) and
         trusts (N_p,) in [0, 1]. ``time`` (s): when the state was measured and the command will be
         sent; it places the commands still in flight for the latency compensation, so a caller
-        that runs faster or slower than dt should give it (default: one call per dt)."""
+        that runs faster or slower than dt should give it (default: one call per dt).
+        ``covariances`` (N_p, 4, 4) of each pedestrian's estimated (x, y, v_x, v_y), or (N_p, 2, 2)
+        of its position: R grows for that pedestrian by its uncertainty along the line of
+        approach, predicted over the latency and the horizon, so that R holds from the true
+        position with probability ``config.confidence`` (:func:`uncertainty_margins`)."""
         t0 = _wall()
         peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)  # refuse bad input first
         now = self._now(time)
         x, peds = self._compensate(self.model.check_state(state), peds, vels, velocities is not None, now)
         p = self.problem
-        p.set_checked_stage(x, peds, vels, tr, self._last_control)
+        margins = None
+        if covariances is not None:
+            c = self.config
+            lead = c.latency + c.horizon * c.dt
+            margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
+        p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
         shifted = None if self._plan is None else np.vstack([self._plan[1:], self._plan[-1:]])
         u0 = p.initial_guess() if shifted is None else shifted
         deadline = self.config.step_deadline

@@ -52,14 +52,17 @@ __all__ = [
     "TrackingWeights",
     "VelocityTrackingCost",
     "as_pedestrians",
+    "check_margins",
     "make_problem",
 ]
 
 
 @dataclass(frozen=True)
 class MpcConfig:
-    """Horizon N_h, step dt, margin R, gamma(trust) of `weight`, CBF timing, latency (s), and the
-    wall-clock deadline of one controller step (s; None = half of dt)."""
+    """Horizon N_h, step dt, margin R, gamma(trust) of `weight`, CBF timing, latency (s), the
+    wall-clock deadline of one controller step (s; None = half of dt), and ``confidence``: the
+    probability with which R is kept from a pedestrian whose state comes with a covariance
+    (:func:`~trustnav.control.barrier.uncertainty_margins`; unused for exact states)."""
 
     horizon: int = 7
     dt: float = 0.05
@@ -68,6 +71,7 @@ class MpcConfig:
     timing: Timing = "paper"
     latency: float = 0.0
     deadline: float | None = None
+    confidence: float = 0.95
 
     @property
     def step_deadline(self) -> float:
@@ -86,6 +90,8 @@ class MpcConfig:
             raise ValueError(f"latency must be >= 0 seconds, got {self.latency!r}")
         if self.deadline is not None and (not self.deadline > 0 or math.isinf(self.deadline)):
             raise ValueError(f"deadline must be a positive finite time in seconds (or None), got {self.deadline!r}")
+        if not 0.5 <= self.confidence < 1.0:
+            raise ValueError(f"confidence must be in [0.5, 1), got {self.confidence!r}")
 
 
 MAX_COORDINATE = 1e12  # m; beyond it float64 spacing exceeds 0.1 mm
@@ -123,6 +129,19 @@ def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
     if not np.isfinite(arr).all():
         raise ValueError(f"{name} must be finite, got {arr.tolist()!r}")
     return np.ascontiguousarray(arr)
+
+
+def check_margins(margins: ArrayLike | None, n_p: int) -> NDArray[np.float64] | None:
+    """Validated per-pedestrian margins (N,) >= 0 metres, or None."""
+    if margins is None:
+        return None
+    try:
+        m = np.asarray(margins, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"margins must be {n_p} non-negative numbers (m), got {margins!r}") from exc
+    if m.shape != (n_p,) or not np.all(np.isfinite(m)) or np.any(m < 0):
+        raise ValueError(f"margins must be {n_p} finite non-negative numbers (m), one per pedestrian, got {margins!r}")
+    return np.ascontiguousarray(m)
 
 
 def as_pedestrians(pedestrians: ArrayLike, velocities: ArrayLike | None, trusts: ArrayLike):
@@ -231,6 +250,8 @@ class MpcProblem:
         self.sens = np.zeros((self.n_h + 1, model.nx, self.n))
         self.u_prev = np.zeros(model.nu)
         self.stage: Any = None
+        self.radii = np.zeros(0)
+        self.r2 = np.zeros(0)
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -254,10 +275,14 @@ class MpcProblem:
         velocities: ArrayLike | None,
         trusts: ArrayLike,
         u_prev: ArrayLike | None = None,
+        margins: ArrayLike | None = None,
     ) -> None:
-        """Data of one MPC step; gamma_j from trust_j by `weight` (inputs validated)."""
+        """Data of one MPC step; gamma_j from trust_j by `weight`; ``margins`` (N,) metres added to
+        R for each pedestrian (None: none; see :func:`~trustnav.control.barrier.uncertainty_margins`).
+        Inputs validated."""
         peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)
-        self.set_checked_stage(self.model.check_state(state), peds, vels, tr, u_prev)
+        m = check_margins(margins, peds.shape[0])
+        self.set_checked_stage(self.model.check_state(state), peds, vels, tr, u_prev, m)
 
     def set_checked_stage(
         self,
@@ -266,8 +291,10 @@ class MpcProblem:
         vels: NDArray[np.float64],
         tr: NDArray[np.float64],
         u_prev: ArrayLike | None = None,
+        margins: NDArray[np.float64] | None = None,
     ) -> None:
-        """:meth:`set_stage` for inputs already validated by :func:`as_pedestrians` and the model."""
+        """:meth:`set_stage` for inputs already validated by :func:`as_pedestrians`,
+        :func:`check_margins` and the model."""
         x0 = x0.copy()
         self.vels = vels
         # ego-centred coordinates: the problem is solved relative to the ego's position, so large
@@ -282,6 +309,9 @@ class MpcProblem:
         self.x0 = np.ascontiguousarray(x0)
         self.peds = np.ascontiguousarray(peds - self.origin)
         self.one_minus_gamma = np.ascontiguousarray(1.0 - gamma(tr, self.config.gamma))
+        radius = self.config.safety_radius
+        self.radii = np.full(tr.shape[0], radius) if margins is None else radius + margins
+        self.r2 = np.ascontiguousarray(self.radii * self.radii)
         if self.peds.shape[0] != self.n_p:
             self._resize(self.peds.shape[0])
         self.u_prev = np.zeros(self.model.nu) if u_prev is None else np.asarray(u_prev, dtype=float).copy()
@@ -289,7 +319,7 @@ class MpcProblem:
 
     def pedestrian_barrier(self) -> PedestrianBarrier:
         """The step's pedestrians as a :class:`PedestrianBarrier` (ego-centred coordinates)."""
-        return PedestrianBarrier(self.peds, self.vels, self.one_minus_gamma, self.config.safety_radius)
+        return PedestrianBarrier(self.peds, self.vels, self.one_minus_gamma, self.radii)
 
     # ---- the linearised QP ----
     def build(self, u: NDArray[np.float64]) -> float:
@@ -317,7 +347,7 @@ class MpcProblem:
         if self.n_p:
             kern.cbf_fill(
                 np.ascontiguousarray(xs[:, :2]), np.ascontiguousarray(sens[:, :2, :]), self.peds, self.vels,
-                self.one_minus_gamma, c.safety_radius**2, c.dt, self.timing_code, self.n_obs, self.A, self.bl,
+                self.one_minus_gamma, self.r2, c.dt, self.timing_code, self.n_obs, self.A, self.bl,
                 self.bu, self.g, self.n,
             )  # fmt: skip
         row = self.m_cbf
@@ -440,7 +470,7 @@ class MpcProblem:
         as lower and upper bounds."""
         xs = self.states_np(u_flat)
         c = self.config
-        rows = cbf_rows(xs[:, :2], self.peds, self.vels, self.one_minus_gamma, c.safety_radius, c.dt, c.timing)
+        rows = cbf_rows(xs[:, :2], self.peds, self.vels, self.one_minus_gamma, self.radii, c.dt, c.timing)
         if self.n_user:
             rows = np.concatenate([rows, self._user_rows(xs, None)[0]], axis=1)
         extra = [
@@ -458,7 +488,7 @@ def _fused_single_integrator(p: MpcProblem, u: NDArray[np.float64]) -> float:
     c = p.config
     pos = p.xs  # nx = 2: the states are the positions
     return kern.single_integrator_qp(
-        p.x0, u, p.stage, p.peds, p.vels, p.one_minus_gamma, c.safety_radius**2, c.dt, p.timing_code, p.n_obs,
+        p.x0, u, p.stage, p.peds, p.vels, p.one_minus_gamma, p.r2, c.dt, p.timing_code, p.n_obs,
         p.ulo, p.uhi, pos, p.sens, p.f, p.A, p.bl, p.bu, p.g,
     )  # fmt: skip
 
@@ -469,7 +499,7 @@ def _fused_bicycle(p: MpcProblem, u: NDArray[np.float64]) -> float:
     st = p.stage
     return kern.bicycle_qp(
         p.x0, u, p.u_prev, st.points, st.yaw, st.speed, p.cost.weights.as_array(), m.wheelbase, m.speed_min,
-        m.speed_max, p.peds, p.vels, p.one_minus_gamma, c.safety_radius**2, c.dt, m.substeps(c.dt), p.timing_code,
+        m.speed_max, p.peds, p.vels, p.one_minus_gamma, p.r2, c.dt, m.substeps(c.dt), p.timing_code,
         p.n_obs, p.m_cbf, p.ulo, p.uhi, p.xs, p.sens, p.H, p.f, p.A, p.bl, p.bu, p.g,
     )  # fmt: skip
 

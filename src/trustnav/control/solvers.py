@@ -678,7 +678,7 @@ class AuthorsSlsqpSolver:
     def _row(p: MpcProblem, k: int, j: int):
         """Closure of the CBF row of pedestrian j at horizon step k (`cbf_imp`)."""
         c = p.config
-        dt, r2 = c.dt, c.safety_radius**2
+        dt, r2 = c.dt, float(p.r2[j])
         q_now = p.peds[j] + k * dt * p.vels[j]
         q_next = q_now + dt * p.vels[j] if c.timing == "paper" else q_now
         omg = float(p.one_minus_gamma[j])

@@ -82,13 +82,15 @@ RECORD_FIELDS = (
 @dataclass(frozen=True)
 class Observation:
     """What a controller may use at ``time``: the ego state and the pedestrians known to it
-    (positions and velocities (M, 2), trusts (M,)), as the world's sensing gives them."""
+    (positions and velocities (M, 2), trusts (M,)), as the world's sensing gives them; with
+    estimated states, ``covariances`` (M, 4, 4) of each one's (x, y, v_x, v_y) (None: exact)."""
 
     time: float
     ego: NDArray[np.float64]
     positions: NDArray[np.float64]
     velocities: NDArray[np.float64]
     trusts: NDArray[np.float64]
+    covariances: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -195,7 +197,9 @@ class MpcPolicy:
 
     def step(self, observation: Observation) -> Decision:
         o = observation
-        sol = self.controller.step(o.ego, o.positions, o.velocities, o.trusts, time=o.time if self.timed else None)
+        sol = self.controller.step(
+            o.ego, o.positions, o.velocities, o.trusts, time=o.time if self.timed else None, covariances=o.covariances
+        )
         self.last_solution = sol
         stats = StepStats(
             status=sol.status.value,

@@ -190,6 +190,10 @@ class TrustEstimator:
             del self._tracks[tid]
         return gone
 
+    def forget(self, track_id: int) -> None:
+        """Forget a track now (e.g. one its tracker has dropped); unknown ids are ignored."""
+        self._tracks.pop(track_id, None)
+
     def trust(self, track_id: int, default: float | None = None) -> float | None:
         st = self._tracks.get(track_id)
         return default if st is None else st.trust

@@ -1,4 +1,6 @@
-"""Annotated frames for `trustnav estimate`: trust-coloured boxes, eye-contact skeletons, phone N/U/Y."""
+"""Annotated frames for `trustnav estimate` and the drives: trust-coloured boxes, eye-contact
+skeletons, phone N/U/Y; in a drive also the pedestrian's name and its colour
+(:func:`trustnav.viz.style.person_colour`, a chip beside the label, as in every figure)."""
 
 from __future__ import annotations
 
@@ -6,6 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+
+from trustnav.viz import style
 
 __all__ = ["SKELETON", "annotate", "place_labels", "trust_colour"]
 
@@ -15,12 +19,12 @@ SKELETON: tuple[tuple[int, int], ...] = (
     (5, 11), (6, 12), (11, 12), (11, 13), (13, 15), (12, 14), (14, 16),
 )  # fmt: skip
 
-GREEN, ORANGE, RED = (0, 200, 0), (0, 140, 255), (0, 0, 230)  # BGR
+GREEN, ORANGE, RED = (style.hex_bgr(c) for _, c in style.TRUST_BANDS)  # BGR, as every figure
 
 
 def trust_colour(trust: float) -> tuple[int, int, int]:
     """BGR colour of a trust value: green > 0.7, orange > 0.4, red otherwise."""
-    return GREEN if trust > 0.7 else (ORANGE if trust > 0.4 else RED)
+    return style.trust_bgr(trust)
 
 
 def _eye_colour(c: float) -> tuple[int, int, int]:
@@ -73,8 +77,10 @@ def annotate(
     phone_labels: Sequence[str],
 ) -> NDArray[np.uint8]:
     """BGR image with, per person: box coloured by trust with 'id trust phone', skeleton coloured by
-    eye contact. ``records`` are the rows of tracks.csv for this frame, in the order of ``keypoints``.
-    Labels are placed so that neighbouring people's labels stay readable (:func:`place_labels`)."""
+    eye contact. ``records`` are the rows of tracks.csv for this frame, in the order of ``keypoints``;
+    a record may also carry ``name`` (shown instead of the track id) and ``colour`` (BGR of the
+    person, drawn as a chip at the label's left). Labels are placed so that neighbouring people's
+    labels stay readable (:func:`place_labels`)."""
     import cv2
 
     img = cv2.cvtColor(frame_rgb, cv2.COLOR_RGB2BGR)
@@ -91,16 +97,19 @@ def annotate(
             if np.isfinite(pa).all() and np.isfinite(pb).all():
                 cv2.line(img, (round(pa[0]), round(pa[1])), (round(pb[0]), round(pb[1])), eye, thick, cv2.LINE_AA)
         cv2.rectangle(img, (x1, y1), (x2, y2), colour, thick + 1)
-        text = f"{rec['track_id']} {rec['trust']:.2f} {label}"
+        text = f"{rec.get('name', rec['track_id'])} {rec['trust']:.2f} {label}"
         (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
+        chip = th + base + 3 if rec.get("colour") is not None else 0
         boxes.append((x1, y1, x2, y2))
-        texts.append((text, colour, base))
-        sizes.append((tw + 4, th + base + 3))
+        texts.append((text, colour, base, chip, rec.get("colour")))
+        sizes.append((tw + 4 + chip, th + base + 3))
     # labels last, over every box and skeleton, each at a free place near its own box
-    for (text, colour, base), (lx1, ly1, lx2, ly2) in zip(
+    for (text, colour, base, chip, person), (lx1, ly1, lx2, ly2) in zip(
         texts, place_labels(boxes, sizes, img.shape[1], img.shape[0]), strict=True
     ):
         cv2.rectangle(img, (lx1, ly1), (lx2, ly2), colour, -1)
-        cv2.putText(img, text, (lx1 + 2, ly2 - base - 1), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255), thick,
-                    cv2.LINE_AA)  # fmt: skip
+        if chip:
+            cv2.rectangle(img, (lx1, ly1), (lx1 + chip - 1, ly2), tuple(int(c) for c in person), -1)
+        cv2.putText(img, text, (lx1 + chip + 2, ly2 - base - 1), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255),
+                    thick, cv2.LINE_AA)  # fmt: skip
     return img

@@ -6,7 +6,8 @@ Reads drive results (duck-typed: the fields and methods of
 :class:`trustnav.sim.driving.episode.DriveResult`: ``scenario``, ``times``, ``ego``, ``pedestrians``,
 ``trusts``, ``frames``, ``distances``, ``trust_series``, ``road_polygons``, ``top_view_image``) and
 imports nothing of trustnav but :mod:`trustnav.viz`; never drives a simulation. Figures are
-``matplotlib.figure.Figure`` objects on an Agg canvas: no pyplot, no global backend change.
+``matplotlib.figure.Figure`` objects on an Agg canvas: no pyplot, no global backend change; they
+share the look of :mod:`trustnav.viz.style` (pedestrian j in ``person_colour(j)`` everywhere).
 """
 
 from __future__ import annotations
@@ -18,38 +19,32 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.viz import style
+
 DriveResult = Any  # trustnav.sim.driving.episode.DriveResult, read duck-typed
 FrameReport = Any  # trustnav.sim.driving.sensing.FrameReport
 
 __all__ = [
     "annotated_frames",
+    "camera_frame_index",
+    "lateral_offset",
     "latest_annotated_frame",
     "plot_distance",
     "plot_top_view",
     "plot_trust",
     "trust_rgb",
+    "trusts_in_force",
     "write_animation",
     "write_drive_outputs",
 ]
 
-# matplotlib colours for trust, matching trustnav.viz.annotate (green > 0.7, orange > 0.4, red)
-_TRUST_COLOURS = ((0.7, "#1a9e3a"), (0.4, "#f08c00"), (-1.0, "#d62020"))
-_PED_STYLES = ("#1f77b4", "#9467bd", "#8c564b", "#e377c2")
+#: matplotlib colour of a trust value (green > 0.7, orange > 0.4, red otherwise)
+trust_rgb = style.trust_colour
 
-
-def trust_rgb(trust: float) -> str:
-    """Matplotlib colour of a trust value (green > 0.7, orange > 0.4, red otherwise)."""
-    return next(c for lim, c in _TRUST_COLOURS if trust > lim)
-
-
-def _figure(figsize: tuple[float, float]) -> tuple[Any, Any]:
-    """A Figure with one Axes on its own Agg canvas (no pyplot state, no backend switch)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize)
-    FigureCanvasAgg(fig)
-    return fig, fig.add_subplot()
+# map colours, as the video's top view (trustnav.sim.driving.topview)
+_SURROUND, _SIDEWALK, _ROAD = "#dfe9d8", "#e9e4da", "#c8c8c8"
+# comparison runs: line style and colour, in the order given
+_COMPARE = (("--", style.BASELINE_COLOUR), (":", "#444444"), ("-.", "#6b6b6b"))
 
 
 def _many(results: Any) -> list[Any]:
@@ -63,59 +58,12 @@ def _yx(p: NDArray) -> tuple[NDArray, NDArray]:
     return p[..., 1], p[..., 0]
 
 
-def plot_top_view(results: DriveResult | Sequence[DriveResult], path: str | Path, title: str | None = None) -> Path:
-    """Top view: road, reference line, ego path(s), pedestrians with their R circles coloured by
-    final trust (several results: one path each, e.g. Case II attentive vs distracted)."""
-    from matplotlib.patches import Circle
-
-    rs = _many(results)
-    r0 = rs[0]
-    sc = r0.scenario
-    fig, ax = _figure((10, 4.2))
-    road, walks, _ = r0.road_polygons()
-    ax.fill(*_yx(road), color="#c8c8c8", zorder=0)
-    for w in walks:
-        ax.fill(*_yx(w), color="#e9e4da", zorder=0)
-    ref = np.array([sc.ego_start, sc.goal])
-    ax.plot(*_yx(ref), "k--", lw=1, label="reference (lane)")
-    ax.plot(*_yx(np.array(sc.goal)), marker="*", ms=14, color="gold", mec="k", zorder=5, label="goal")
-    styles = ("-", "-.", ":")
-    for k, r in enumerate(rs):
-        tag = _variant(r) if len(rs) > 1 else "ego path"
-        ax.plot(*_yx(r.ego[:, :2]), styles[k % 3], color="#222222" if k == 0 else "#0057b8", lw=2, label=tag)
-        for j, p in enumerate(r.scenario.pedestrians):
-            tr = float(r.trusts[-1, j])
-            c = trust_rgb(tr)
-            p0, p1 = r.pedestrians[0, j], r.pedestrians[-1, j]
-            if np.linalg.norm(p1 - p0) > 0.05:
-                ax.plot(*_yx(r.pedestrians[:, j]), color=c, lw=1.5)
-            i_min = int(np.argmin(r.distances[:, j]))
-            q = r.pedestrians[i_min, j]
-            circ = Circle(_yx(q)[::1], sc.control.safety_radius, fill=False, ls="--", color=c, lw=1.3)
-            ax.add_patch(circ)
-            ax.plot(*_yx(q), "o", color=c, ms=8, mec="k", zorder=6)
-            if k == 0 or len(rs) > 1:
-                who = p.name if len(rs) == 1 else f"{p.name} ({_variant(r)})"
-                label = f"{who}: trust {tr:.2f}, min d {r.distances[:, j].min():.2f} m"
-                off = -3.9 if q[0] < np.mean([sc.ego_start[0], sc.goal[0]]) else 3.9
-                off += 1.4 * k * np.sign(off)
-                ax.annotate(label, _yx(q), xytext=(q[1], q[0] + off), fontsize=8, ha="center", va="center",
-                            color=c, arrowprops={"arrowstyle": "-", "color": c, "lw": 0.6})  # fmt: skip
-    ax.set_aspect("equal")
-    ys = np.concatenate([r.ego[:, 1] for r in rs])
-    ax.set_xlim(max(ys.max(), sc.ego_start[1]) + 3, min(ys.min(), sc.goal[1]) - 3)
-    xs = np.array([sc.ego_start[0], sc.goal[0], *[p.position[0] for p in sc.pedestrians]])
-    ax.set_ylim(xs.min() - 6.5, xs.max() + 6.5)
-    ax.set_xlabel("map y (m)   (driving direction ->)")
-    ax.set_ylabel("map x (m)")
-    ax.set_title(
-        title or f"{sc.title}  [{r0.sensing} sensing, circles R = {sc.control.safety_radius:g} m]", fontsize=10
-    )
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=8, ncol=5, frameon=False)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=130)
-    return out
+def trusts_in_force(result: DriveResult) -> NDArray[np.float64]:
+    """(T+1, N) the trusts the controller used from sample i on (a sample is recorded before the
+    frame captured at its time updates the trusts): those recorded at sample i + 1, the last
+    sample keeping its own. At t = 0: the trusts of the first camera frame, as its boxes show."""
+    tr = np.asarray(result.trusts, dtype=float)
+    return np.concatenate([tr[1:], tr[-1:]]) if len(tr) > 1 else tr.copy()
 
 
 def _variant(r: DriveResult) -> str:
@@ -123,58 +71,240 @@ def _variant(r: DriveResult) -> str:
     return "attentive" if att == {True} else ("distracted" if att == {False} else "mixed")
 
 
-def plot_trust(result: DriveResult, path: str | Path) -> Path:
-    """Trust of each pedestrian over time as the controller used it, with a marker at every frame
-    that observed (and so updated) the pedestrian (Fig. `trust_scene1`)."""
-    fig, ax = _figure((6.4, 3.6))
-    for j, p in enumerate(result.scenario.pedestrians):
-        c = _PED_STYLES[j % len(_PED_STYLES)]
-        kind = "attentive" if p.attentive else "distracted"
-        label = p.name if p.name == kind else f"{p.name} ({kind})"
-        ax.step(result.times, result.trusts[:, j], where="post", color=c, lw=1.6, label=label)
-        t, tr = result.trust_series(j)
-        ax.plot(t, tr, "o", color=c, ms=5)
-    for f in result.frames:
-        ax.axvline(f.time, color="0.85", lw=0.6, zorder=0)
-    ax.set_ylim(-0.02, 1.02)
-    ax.set_xlabel("time (s)   (grey lines: camera frames; dots: frames that observed the pedestrian)")
-    ax.set_ylabel("aggregated trust")
-    ax.set_title(f"{result.scenario.name}: trust from the camera ({result.sensing}, {result.capture_rate:g} frame/s)",
-                 fontsize=10)  # fmt: skip
-    return _finish(fig, ax, path)
+def _name(r: DriveResult, j: int) -> str:
+    p = r.scenario.pedestrians[j]
+    return style.person_label(p.name, p.attentive)
 
 
-def _finish(fig: Any, ax: Any, path: str | Path) -> Path:
-    """Legend, grid and layout of a time plot; saved to ``path`` and closed."""
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=130)
-    return out
+def lateral_offset(result: DriveResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(map y, signed offset from the road's centre line) of the ego per sample; the offset is
+    positive toward the road's left normal (map +x for a road driven toward -y, as Case I's)."""
+    _, _, t = result.road_polygons()
+    a = np.asarray(result.scenario.road.start, dtype=float)
+    n = np.array([-t[1], t[0]])
+    return result.ego[:, 1], (result.ego[:, :2] - a) @ n
 
 
-def plot_distance(results: DriveResult | Sequence[DriveResult], path: str | Path) -> Path:
-    """Ego-pedestrian distance over time with the margin R (Fig. `dist_carla2`)."""
+def camera_frame_index(result: DriveResult) -> int | None:
+    """The frame to show beside a top view: the latest of those that perceived the most pedestrians."""
+    if not result.frames:
+        return None
+    best = max(f.detections for f in result.frames)
+    return max(k for k, f in enumerate(result.frames) if f.detections == best)
+
+
+@style.styled()
+def plot_top_view(
+    results: DriveResult | Sequence[DriveResult],
+    path: str | Path,
+    title: str | None = None,
+    comparisons: Sequence[tuple[str, DriveResult]] = (),
+    camera_frames: Sequence[NDArray[np.uint8]] | None = None,
+    offset_only: Sequence[tuple[str, DriveResult]] = (),
+) -> Path:
+    """Top view to scale (road, lane centre, ego path(s), pedestrians in their own colours with
+    their R rings at the closest approach), under it the lateral offset from the lane centre
+    (magnified, so that a bend of decimetres shows) and, for one result with camera frames, the
+    annotated camera frame that saw the most pedestrians.
+
+    ``results``: one drive, or several (Case II: attentive vs distracted, one path each).
+    ``comparisons``: (label, result) drives of the same scenario drawn as dashed / dotted paths,
+    e.g. ``("equal trust 1.0", equal)``: the same world with every pedestrian trusted alike.
+    ``camera_frames``: the annotated frames (BGR) of the first result (default: drawn here).
+    ``offset_only``: (label, result) drives drawn in the offset panel only (e.g. the same drive
+    in keypoint sensing, to show how much of the bend perception costs)."""
     rs = _many(results)
-    fig, ax = _figure((6.4, 3.6))
+    r0 = rs[0]
+    sc = r0.scenario
+    cams = None
+    if len(rs) == 1 and r0.frames:
+        cams = list(camera_frames) if camera_frames is not None else annotated_frames(r0)
+    fig, _ = style.new_figure((10.5, 6.6 if cams else 6.0), nrows=0)
+    gs = fig.add_gridspec(2, 2, height_ratios=(1.35, 1.0), width_ratios=(1.45, 1.0))
+    ax = fig.add_subplot(gs[0, :])
+    ax_off = fig.add_subplot(gs[1, 0] if cams else gs[1, :])
+    radius = sc.control.safety_radius
+
+    # -- the map, to scale
+    ax.set_facecolor(_SURROUND)
+    ax.grid(False)
+    road, walks, _ = r0.road_polygons()
+    ax.fill(*_yx(road), color=_ROAD, zorder=0)
+    for w in walks:
+        ax.fill(*_yx(w), color=_SIDEWALK, zorder=0)
+    ax.plot(*_yx(np.array([sc.ego_start, sc.goal])), color="white", ls=(0, (6, 4)), lw=1.2, zorder=1)
+    runs = [(k, r, "-", style.EGO_COLOUR if k == 0 else "#0057b8") for k, r in enumerate(rs)]
+    runs += [(len(rs) + k, r, *_COMPARE[k % len(_COMPARE)]) for k, (_, r) in enumerate(comparisons)]
+    tags = [_variant(r) + " run" if len(rs) > 1 else "trust-aware" for r in rs] + [lab for lab, _ in comparisons]
+    n_map = len(runs)
+    runs += [(n_map + k, r, *_COMPARE[(len(comparisons) + k) % len(_COMPARE)]) for k, (_, r) in enumerate(offset_only)]
+    tags += [lab for lab, _ in offset_only]
+    for (k, r, ls, colour), tag in zip(runs[:n_map], tags[:n_map], strict=True):
+        lw = 2.0 if k == 0 else 1.6
+        ax.plot(*_yx(r.ego[:, :2]), ls=ls, color=colour, lw=lw, zorder=3, label=f"{tag} path")
+    ax.plot(*_yx(np.array(sc.ego_start)), "s", color=style.EGO_COLOUR, ms=6, zorder=5, label="start")
+    ax.plot(*_yx(np.array(sc.goal)), marker="*", ms=14, color="gold", mec="k", zorder=5, ls="", label="goal")
     for k, r in enumerate(rs):
-        for j, p in enumerate(r.scenario.pedestrians):
-            tag = p.name if len(rs) == 1 else f"{p.name} ({_variant(r)})"
-            c = (
-                _PED_STYLES[(j + k) % len(_PED_STYLES)]
-                if len(rs) == 1
-                else ("#1a9e3a" if _variant(r) == "attentive" else "#d62020")
-            )
+        for j in range(len(r.scenario.pedestrians)):
+            _pedestrian_on_map(ax, r, j, k, radius, comparisons if len(rs) == 1 else (),
+                               f"{_variant(r)} run" if len(rs) > 1 else "")  # fmt: skip
+    regions = rs[0].estimate_regions() if hasattr(rs[0], "estimate_regions") else []
+    for j, mean, ring in regions:  # what the camera placed, frame by frame, with its 90 % region
+        colour = style.person_colour(j)
+        ax.plot(*_yx(ring), ls="--", lw=0.9, color=colour, zorder=6)
+        ax.plot(*_yx(mean), "x", ms=5, mew=1.3, color=colour, zorder=6)
+    if regions:
+        ax.plot([], [], "x--", color="0.3", lw=0.9, label="camera estimates, 90 % regions")
+    ax.set_aspect("equal", adjustable="box")
+    ys = np.concatenate([r.ego[:, 1] for r in rs])
+    x_left, x_right = max(ys.max(), sc.ego_start[1]) + 3, min(ys.min(), sc.goal[1]) - 3
+    ax.set_xlim(x_left, x_right)
+    xs = np.array([sc.ego_start[0], sc.goal[0], *[p.position[0] for p in sc.pedestrians]])
+    ax.set_ylim(xs.min() - 7.0, xs.max() + 6.0)
+    ax.set_xlabel("map y (m), driving direction →")
+    ax.set_ylabel("map x (m)")
+    sensing = f"{r0.sensing} sensing" + (f", camera {r0.capture_rate:g} frame/s" if r0.frames else "")
+    ax.set_title(f"top view to scale ({sensing}); rings: R = {radius:g} m at the closest approach")
+    style.legend(ax, loc="lower left", ncol=3, fontsize=7.5)
+
+    # -- lateral offset, magnified
+    peak = 0.0
+    for (k, r, ls, colour), tag in zip(runs, tags, strict=True):
+        y, off = lateral_offset(r)
+        i = int(np.argmax(np.abs(off)))
+        peak = max(peak, abs(off[i]))
+        ax_off.plot(y, off, ls=ls, color=colour, lw=2.0 if k == 0 else 1.6,
+                    label=f"{tag}: bend {abs(off[i]):.2f} m")  # fmt: skip
+    lim = max(1.0, 1.35 * peak)
+    a = np.asarray(sc.road.start, dtype=float)
+    _, _, t = r0.road_polygons()
+    n = np.array([-t[1], t[0]])
+    for j, p in enumerate(sc.pedestrians):
+        side = float((np.asarray(p.position) - a) @ n)
+        c = style.person_colour(j)
+        ax_off.axvline(p.position[1], color=c, ls=":", lw=1.2)
+        ax_off.text(p.position[1], 0.93 * lim * np.sign(side or 1.0), f" {p.name} side",
+                    color=c, ha="left", va="top" if side > 0 else "bottom")  # fmt: skip
+    ax_off.axhline(0.0, color="0.5", lw=0.8)
+    ax_off.set_ylim(-lim, lim)
+    ax_off.set_xlim(x_left, x_right)
+    ax_off.set_xlabel("map y (m), driving direction →")
+    ax_off.set_ylabel("offset from lane centre (m)")
+    ax_off.set_title("the path's offset from the lane centre (vertical scale magnified)")
+    style.legend(ax_off)
+
+    # -- the camera frame
+    if cams:
+        k = camera_frame_index(r0)
+        assert k is not None
+        ax_cam = fig.add_subplot(gs[1, 1])
+        f = r0.frames[k]
+        ax_cam.imshow(np.ascontiguousarray(_crop_to_people(cams[k], [s.person.bbox for s in f.sensed])[..., ::-1]))
+        ax_cam.set_axis_off()
+        ax_cam.set_title(f"camera at t = {f.time:.0f} s: box colour = trust,\nchip = pedestrian, "
+                         "skeleton = eye contact (red none, green full)", fontsize=8)  # fmt: skip
+    fig.suptitle(title or sc.title)
+    return style.save(fig, path)
+
+
+def _crop_to_people(img: NDArray[np.uint8], boxes: Sequence[NDArray]) -> NDArray[np.uint8]:
+    """The part of a camera frame around its people (boxes [x1, y1, x2, y2] px) and their labels, at
+    the frame's aspect ratio and at least 45 % of its width, so that the labels stay readable when
+    the frame is drawn small."""
+    h, w = img.shape[:2]
+    if not boxes:
+        return img
+    b = np.array([np.asarray(x, dtype=float)[:4] for x in boxes])
+    pad = 0.1 * w  # room for the labels beside and above the boxes
+    x1, y1, x2, y2 = b[:, 0].min() - pad, b[:, 1].min() - 0.1 * h, b[:, 2].max() + pad, b[:, 3].max() + 0.05 * h
+    cw = min(float(w), max(0.45 * w, x2 - x1, (y2 - y1) * w / h))
+    ch = cw * h / w
+    cx = min(max((x1 + x2) / 2, cw / 2), w - cw / 2)
+    cy = min(max((y1 + y2) / 2, ch / 2), h - ch / 2)
+    u0, v0 = round(cx - cw / 2), round(cy - ch / 2)
+    return img[v0 : v0 + round(ch), u0 : u0 + round(cw)]
+
+
+def _pedestrian_on_map(
+    ax: Any, r: DriveResult, j: int, k: int, radius: float, others: Sequence[tuple[str, DriveResult]], run: str
+) -> None:
+    """Pedestrian j of run k: its path if it walks, a dot and R ring at its closest approach, and a
+    label with its trust and minimum distance (and those of the comparison runs)."""
+    from matplotlib.patches import Circle
+
+    c = style.person_colour(j)
+    if np.linalg.norm(r.pedestrians[-1, j] - r.pedestrians[0, j]) > 0.05:
+        ax.plot(*_yx(r.pedestrians[:, j]), color=c, lw=1.5, zorder=2)
+    i_min = int(np.argmin(r.distances[:, j]))
+    q = r.pedestrians[i_min, j]
+    ax.add_patch(Circle(_yx(q), radius, fill=False, ls="--", color=c, lw=1.4, zorder=4))
+    ax.plot(*_yx(q), "o", color=c, ms=8, mec="k", zorder=6)
+    lines = [f"{r.scenario.pedestrians[j].name}, {run}" if run else _name(r, j),
+             f"final trust {float(r.trusts[-1, j]):.2f}, min d {r.distances[:, j].min():.2f} m"]  # fmt: skip
+    for label, o in others:
+        lines.append(f"{label}: min d {o.distances[:, j].min():.2f} m")
+    right = k % 2 == 0
+    x = q[1] - (radius + 0.8) if right else q[1] + (radius + 0.8)
+    ax.text(x, q[0], "\n".join(lines), color=c, fontsize=8, ha="left" if right else "right", va="center", zorder=7,
+            bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": c, "lw": 0.6, "alpha": 0.85})  # fmt: skip
+
+
+@style.styled()
+def plot_trust(result: DriveResult, path: str | Path) -> Path:
+    """Trust of each pedestrian over time as the controller used it (from the first camera frame
+    on), with a dot at every frame that observed (and so updated) the pedestrian and a tick at the
+    top for every camera frame (Fig. `trust_scene1`)."""
+    fig, ax = style.new_figure((6.4, 3.6))
+    t = np.asarray(result.times)
+    tr = trusts_in_force(result)
+    for j in range(len(result.scenario.pedestrians)):
+        c = style.person_colour(j)
+        ax.step(t, tr[:, j], where="post", color=c, label=_name(result, j))
+        ft, ftr = result.trust_series(j)
+        ax.plot(ft, ftr, "o", color=c, ms=5)
+    if result.frames:
+        ft = [f.time for f in result.frames]
+        ax.plot(ft, [1.0] * len(ft), "v", color="0.45", ms=5, transform=ax.get_xaxis_transform(), clip_on=False,
+                label="camera frame (dot: pedestrian observed)")  # fmt: skip
+    ax.set_xlim(0.0, max(float(t[-1]), 1e-3))
+    ax.set_ylim(0.0, 1.0)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("trust (0 to 1)")
+    ax.set_title(f"{result.scenario.name}: trust from the camera ({result.sensing} sensing, "
+                 f"{result.capture_rate:g} frame/s)", pad=9)  # fmt: skip
+    style.legend(ax, loc="upper right")
+    return style.save(fig, path)
+
+
+@style.styled()
+def plot_distance(
+    results: DriveResult | Sequence[DriveResult],
+    path: str | Path,
+    comparisons: Sequence[tuple[str, DriveResult]] = (),
+) -> Path:
+    """Ego-pedestrian distance over time with the margin R (Fig. `dist_carla2`): each pedestrian
+    in its own colour, one line style per run (several results: Case II's two runs; comparisons:
+    e.g. the equal-trust run, dashed)."""
+    rs = _many(results)
+    fig, ax = style.new_figure((6.4, 3.6))
+    styles = ("-", "--", ":", "-.")
+    runs = [(r, "" if len(rs) == 1 else f"{_variant(r)} run") for r in rs] + [(r, lab) for lab, r in comparisons]
+    for k, (r, tag) in enumerate(runs):
+        for j in range(len(r.scenario.pedestrians)):
             d = r.distances[:, j]
-            ax.plot(r.times, d, color=c, lw=1.6, label=f"{tag}: min {d.min():.2f} m")
+            who = f"{r.scenario.pedestrians[j].name}, {tag}" if k < len(rs) and tag else _name(r, j)
+            who += f", {tag}" if k >= len(rs) else ""
+            ax.plot(r.times, d, color=style.person_colour(j), ls=styles[k % len(styles)],
+                    lw=1.8 if k == 0 else 1.4, label=f"{who}: min {d.min():.2f} m")  # fmt: skip
     radius = rs[0].scenario.control.safety_radius
-    ax.axhline(radius, color="r", ls="--", lw=1.2, label=f"R = {radius:g} m")
-    ax.set_ylim(0, min(15.0, max(r.distances.max() for r in rs) + 1))
+    ax.axhline(radius, color=style.MARGIN_COLOUR, ls="--", lw=1.2, label=f"R = {radius:g} m")
+    ax.set_ylim(0, min(15.0, max(r.distances.max() for r, _ in runs) + 1))
+    ax.set_xlim(0.0, max(float(r.times[-1]) for r, _ in runs))
     ax.set_xlabel("time (s)")
     ax.set_ylabel("distance to pedestrian (m)")
-    ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians", fontsize=10)
-    return _finish(fig, ax, path)
+    ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians")
+    style.legend(ax, loc="lower left")  # before the approach: nothing there
+    return style.save(fig, path)
 
 
 # ------------------------------------------------------------------ camera frames and animation
@@ -212,18 +342,26 @@ def _backdrop(result: DriveResult, frame: FrameReport) -> NDArray[np.uint8]:
 
 def annotated_frames(result: DriveResult) -> list[NDArray[np.uint8]]:
     """Each captured frame annotated with trustnav.viz.annotate (BGR): box coloured by trust with
-    'track trust phone', skeleton coloured by eye contact; plus the time."""
+    'pedestrian trust phone' and a chip in the pedestrian's colour, skeleton coloured by eye
+    contact; plus the time."""
     import cv2
 
     from trustnav.viz.annotate import annotate
 
+    names = [p.name for p in result.scenario.pedestrians]
     out = []
     for f in result.frames:
         recs, kps, labels = [], [], []
         for s in f.sensed:
-            v = f.views[s.index]
-            recs.append({"bbox": [float(x) for x in s.person.bbox], "trust": float(v.trust or 0.0),
-                         "eye_contact": s.eye_contact, "track_id": s.track_id})  # fmt: skip
+            j = s.index  # the world pedestrian it is (None: a detection of nobody)
+            trust = getattr(s, "trust", None)  # the trust of the track it joined, where known
+            if trust is None and j is not None:
+                trust = f.views[j].trust
+            rec = {"bbox": [float(x) for x in s.person.bbox], "trust": float(trust or 0.0),
+                   "eye_contact": s.eye_contact, "track_id": s.track_id}  # fmt: skip
+            if j is not None:
+                rec.update(name=names[j], colour=style.person_bgr(j))
+            recs.append(rec)
             kps.append(s.person.keypoints)
             labels.append(s.phone_label)
         img = annotate(_backdrop(result, f), recs, kps, labels)
@@ -255,12 +393,6 @@ class _LastFrame:
         return getattr(self._r, name)
 
 
-def _bgr(hex_colour: str) -> tuple[int, int, int]:
-    h = hex_colour.lstrip("#")
-    r, g, b = (int(h[i : i + 2], 16) for i in (0, 2, 4))
-    return (b, g, r)
-
-
 def write_animation(
     result: DriveResult, path: str | Path, frames: Sequence[NDArray[np.uint8]] | None = None, fps: float = 20.0
 ) -> Path:
@@ -275,9 +407,10 @@ def write_animation(
     canvas = (size[0], size[1] + cam_h)
     idx_of_frame = np.searchsorted(result.times, [f.time for f in result.frames], side="left")
     sc = result.scenario
+    trusts = trusts_in_force(result)
     images = []
     for i in range(len(result.times)):
-        img = np.zeros((canvas[1], canvas[0], 3), dtype=np.uint8)
+        img = np.full((canvas[1], canvas[0], 3), 24, dtype=np.uint8)
         img[: size[1]] = result.top_view_image(i, size)
         shown = [k for k, fi in enumerate(idx_of_frame) if fi <= i]
         if shown and frames:
@@ -287,17 +420,17 @@ def write_animation(
         lines = [
             (f"{sc.title}", (255, 255, 255)),
             (f"{result.sensing} sensing, camera {result.capture_rate:g} frame/s, control {sc.control.rate:g} Hz", None),
-            ("left: latest camera frame (box colour = trust, skeleton colour = eye contact, phone N/U/Y)", None),
-            ("cyan: MPC plan; red: path; circles: R around each pedestrian", None),
+            ("left: latest camera frame (box colour = trust, chip = pedestrian,", None),
+            ("      skeleton colour = eye contact, phone N/U/Y)", None),
+            ("top: cyan = MPC plan, black = path; ring = R around each pedestrian", None),
+            ("      in its colour, dot = its trust (green > 0.7, orange > 0.4, red)", None),
         ]
-        for j, p in enumerate(sc.pedestrians):
-            tr = float(result.trusts[i, j])
-            kind = "attentive" if p.attentive else "distracted"
-            lines.append((f"{p.name} ({kind}): trust {tr:.2f}, distance {result.distances[i, j]:.1f} m",
-                          _bgr(trust_rgb(tr))))  # fmt: skip
+        for j in range(len(sc.pedestrians)):
+            lines.append((f"{_name(result, j)}: trust {trusts[i, j]:.2f}, distance {result.distances[i, j]:.1f} m",
+                          _light(style.person_colour(j))))  # fmt: skip
         for text, colour in lines:
             cv2.putText(img, text, (x0, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour or (200, 200, 200), 1, cv2.LINE_AA)
-            y += 28
+            y += 26
         images.append(img)
     size = canvas
     out = Path(path)
@@ -311,24 +444,36 @@ def write_animation(
     from PIL import Image
 
     gif = out.with_suffix(".gif")
-    pil = [Image.fromarray(cv2.cvtColor(im, cv2.COLOR_BGR2RGB)).resize((640, 280)) for im in images[::2]]
+    pil = [Image.fromarray(cv2.cvtColor(im, cv2.COLOR_BGR2RGB)).resize((640, 380)) for im in images[::2]]
     pil[0].save(gif, save_all=True, append_images=pil[1:], duration=int(2000 / fps), loop=0)
     return gif
 
 
-def write_drive_outputs(result: DriveResult, out: str | Path, video: bool = True) -> dict[str, Path]:
+def _light(colour: str) -> tuple[int, int, int]:
+    """A person's colour lightened for text on the video's dark panel (BGR)."""
+    b, g, r = style.hex_bgr(colour)
+    return tuple(int(v + (255 - v) * 0.35) for v in (b, g, r))  # type: ignore[return-value]
+
+
+def write_drive_outputs(
+    result: DriveResult,
+    out: str | Path,
+    video: bool = True,
+    comparisons: Sequence[tuple[str, DriveResult]] = (),
+) -> dict[str, Path]:
     """Write a drive's figures, annotated frames and animation into ``out``; returns their paths
-    (metrics.json is the caller's)."""
+    (metrics.json is the caller's). ``comparisons``: (label, result) runs of the same scenario
+    drawn beside it in the top view and the distance plot (e.g. the equal-trust run)."""
     import cv2
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "top_view": plot_top_view(result, out / "top_view.png"),
-        "trust": plot_trust(result, out / "trust.png"),
-        "distance": plot_distance(result, out / "distance.png"),
-    }
     frames = annotated_frames(result)
+    paths = {
+        "top_view": plot_top_view(result, out / "top_view.png", comparisons=comparisons, camera_frames=frames),
+        "trust": plot_trust(result, out / "trust.png"),
+        "distance": plot_distance(result, out / "distance.png", comparisons=comparisons),
+    }
     fdir = out / "frames"
     fdir.mkdir(exist_ok=True)
     for old in fdir.glob("frame_*.png"):

@@ -3,9 +3,20 @@ camera frames -> perception -> trust -> bicycle MPC (`proposed` with `cbf_imp`) 
 
 Two rates: the controller runs every 1 / control.rate seconds, the camera captures a frame every
 1 / camera.rate seconds (the trust-estimation rate). Rendering and perception take no simulated
-time and the controller never waits for them: a frame captured at t updates the trusts used from
-the control step at t on. Pedestrian positions and velocities for the controller come from the
-world (as in the authors' code), optionally with noise; trust comes only from perception.
+time and the controller never waits for them: a frame captured at t updates what the controller
+uses from the control step at t on.
+
+Two ways the controller learns where pedestrians are (``state``):
+
+* ``perceived`` (default): from the camera only. Each frame's people are placed on the ground
+  (:class:`~trustnav.perception.localisation.GroundLocaliser`: the map's road and kerb heights, the
+  ego's pose as odometry), followed by a world-frame Kalman tracker, and their trust is kept per
+  world track (:class:`~trustnav.perception.pedestrians.PedestrianEstimator`); the controller gets
+  every live track predicted to the control step, with its covariance, and keeps R from the true
+  person with the configured confidence (:func:`~trustnav.control.barrier.uncertainty_margins`).
+  Ground truth only scores (localisation error, coverage, identity switches, distances).
+* ``true``: positions and velocities from the world (as in the authors' code), optionally with
+  noise; trust from perception, associated with the world's pedestrians by their true boxes.
 
 The world is one implementation of :class:`DriveWorld` (ego state, pedestrian states, what the
 camera sees, apply a command, advance time): :class:`SimWorld` is trustnav's own (bicycle plant with
@@ -20,6 +31,7 @@ the engine's runner; the Gymnasium environment steps the same world through a
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -29,9 +41,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import SolveStatus
+from trustnav.geometry.camera import CameraPose
+from trustnav.perception.localisation import chi2_90
+from trustnav.perception.pedestrians import PedestrianEstimator, SeenPerson
 from trustnav.sim.driving import topview
 from trustnav.sim.driving.body import Appearance, Skeleton
-from trustnav.sim.driving.camera import CameraPose
 from trustnav.sim.driving.sensing import (
     SENSING_MODES,
     FrameReport,
@@ -42,10 +56,17 @@ from trustnav.sim.driving.sensing import (
     in_view,
     projected_box,
 )
-from trustnav.sim.driving.world import DriveScenario, VehiclePlant, pedestrian_bodies, pedestrian_states
+from trustnav.sim.driving.world import (
+    DriveScenario,
+    VehiclePlant,
+    pedestrian_bodies,
+    pedestrian_states,
+    street_of,
+)
 from trustnav.sim.engine import Decision, EpisodeResult, Observation, Sample, make_mpc, run
 
 __all__ = [
+    "STATES",
     "DriveResult",
     "DriveSimulation",
     "DriveWorld",
@@ -59,6 +80,8 @@ __all__ = [
 ]
 
 Bodies = list[tuple[Skeleton, Appearance]]
+#: Where the controller's pedestrian states come from: the camera (default) or the world.
+STATES = ("perceived", "true")
 
 
 @runtime_checkable
@@ -84,7 +107,9 @@ class DriveWorld(Protocol):
     def camera_view(self) -> tuple[CameraPose, Bodies]:
         """The camera now and each pedestrian's 3-D body, in one frame where the camera model
         projects as the real camera does (sensing projects the bodies: keypoints, or boxes to
-        associate perception with pedestrians)."""
+        associate perception with pedestrians). A world whose camera frame is not the scenario's
+        has ``camera_to_scenario``, the orthogonal 2x2 map of ground points from one to the other
+        (perceived pedestrians are placed with it)."""
         ...
 
     def frame_image(self) -> NDArray[np.uint8] | None:
@@ -146,7 +171,8 @@ class DriveSimulation:
 
     ``world``: a :class:`DriveWorld` (default :class:`SimWorld` of the scenario). ``sensor``: a
     :class:`KeypointSensor` (default, built from the scenario and seed) or a :class:`RenderSensor`.
-    Randomness (sensing noise, controller-input noise) comes from ``seed``.
+    ``state``: "perceived" (the controller's pedestrians from the camera) or "true" (from the
+    world); see the module. Randomness (sensing noise, controller-input noise) comes from ``seed``.
     """
 
     def __init__(
@@ -158,8 +184,13 @@ class DriveSimulation:
         control_rate: float | None = None,
         world: DriveWorld | None = None,
         max_frames: int | None = None,
+        state: str = "perceived",
     ) -> None:
+        if state not in STATES:
+            raise ValueError(f"state must be one of {STATES}, got {state!r}")
+        self.state_source = state
         self.scenario = scenario
+        self.street = street_of(scenario)
         self.capture_rate = float(capture_rate or scenario.camera.rate)
         self.control_rate = float(control_rate or scenario.control.rate)
         if not self.capture_rate > 0 or not self.control_rate > 0:
@@ -193,6 +224,9 @@ class DriveSimulation:
         if self._own_sensor:
             self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
         self.trust = TrustTracker(len(sc.pedestrians), keep_time=sc.sensing.keep_time)
+        self.perceived = PedestrianEstimator(sc.sensing.localiser(), sc.sensing.tracker(), self.trust.estimator)
+        self._truth_track: dict[int, int] = {}  # pedestrian index -> world track last seen as it (scoring)
+        self._truth_trust = np.zeros(len(sc.pedestrians))  # its trust then (0 until seen)
         self.frames: list[FrameReport] = []
         self._next_capture = 0.0
         self.steps = 0
@@ -221,8 +255,12 @@ class DriveSimulation:
         return self.world.pedestrian_states()
 
     def controller_inputs(self) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """(ego state, pedestrian positions, velocities, trusts) as the controller gets them: positions
-        and velocities of the same pedestrians in the same (scenario) order as the trusts."""
+        """(ego state, pedestrian positions, velocities, trusts) as the controller gets them: the
+        perceived tracks predicted to now (``state`` "perceived"), or the world's pedestrians in
+        scenario order, with the configured noise ("true")."""
+        if self.state_source == "perceived":
+            est = self.perceived.estimates(self.time)
+            return self.state, est.positions, est.velocities, est.trusts
         pos, vel = self.pedestrians()
         s = self.scenario.sensing
         if s.position_noise > 0:
@@ -230,6 +268,25 @@ class DriveSimulation:
         if s.velocity_noise > 0:
             vel = vel + self.rng_inputs.normal(0.0, s.velocity_noise, vel.shape)
         return self.state, pos, vel, self.trust.trusts()
+
+    def _pedestrian_trust(self, j: int) -> float | None:
+        """The trust the controller holds for world pedestrian ``j`` (scoring): its index's memory
+        ("true"), or that of the world track last seen as it ("perceived"); None before any."""
+        if self.state_source == "true":
+            return self.trust.trust(j)
+        tid = self._truth_track.get(j)
+        if tid is None:
+            return None
+        t = self.trust.estimator.trust(tid)
+        if t is not None:
+            self._truth_trust[j] = t
+        return float(self._truth_trust[j])
+
+    def pedestrian_trusts(self) -> NDArray[np.float64]:
+        """(N,) the trust in force for each world pedestrian (0 before it is seen), for records."""
+        if self.state_source == "true":
+            return self.trust.trusts()
+        return np.array([self._pedestrian_trust(j) or 0.0 for j in range(len(self.scenario.pedestrians))])
 
     def capture_due(self) -> bool:
         return self.time + 1e-9 >= self._next_capture
@@ -241,24 +298,51 @@ class DriveSimulation:
         sensed, image, false_pos, timing = self.sensor.sense(cam, bodies)
         if image is None:
             image = self.world.frame_image()
-        self.trust.update(sensed, self.time)
-        by_index = {s.index: s for s in sensed}
+        true_pos, true_vel = self.pedestrians()
+        tracks: tuple[Any, ...] = ()
+        estimate: dict[int, tuple[NDArray, NDArray]] = {}
+        if self.state_source == "perceived":
+            seen = [SeenPerson(s.person, s.eye_contact, s.phone) for s in sensed]
+            to_world = getattr(self.world, "camera_to_scenario", None)  # e.g. CARLA's left-handed map
+            ids = self.perceived.update(self.time, cam, seen, self.street.ground_height, to_world)
+            tracks = tuple(self.perceived.tracker.predict(self.time))
+            by_id = {t.track_id: t for t in tracks}
+            memory = self.trust.estimator
+            sensed = [
+                replace(s, track_id=-1 if tid is None else tid, trust=None if tid is None else memory.trust(tid))
+                for s, tid in zip(sensed, ids, strict=True)
+            ]
+            for s, tid in zip(sensed, ids, strict=True):
+                if s.index is not None and tid is not None and tid in by_id:  # scoring only
+                    self._truth_track[s.index] = tid
+                    estimate[s.index] = (by_id[tid].mean, by_id[tid].covariance)
+        else:
+            self.trust.update(sensed, self.time)
+            sensed = [replace(s, trust=None if s.index is None else self.trust.trust(s.index)) for s in sensed]
+        by_index = {
+            s.index: s for s in sensed if s.index is not None and (s.track_id >= 0 or self.state_source == "true")
+        }
         views = []
         for j, (sk, _) in enumerate(bodies):
-            seen = by_index.get(j)
+            seen_j = by_index.get(j)
+            est = estimate.get(j)
             views.append(
                 PedestrianView(
                     index=j,
                     in_view=in_view(cam, sk, sc.sensing),
                     box=projected_box(cam, sk),
-                    observed=seen is not None,
-                    track_id=None if seen is None else seen.track_id,
-                    eye_contact=None if seen is None else seen.eye_contact,
-                    phone=None if seen is None else seen.phone,
-                    trust=self.trust.trust(j),
+                    observed=seen_j is not None,
+                    track_id=None if seen_j is None else seen_j.track_id,
+                    eye_contact=None if seen_j is None else seen_j.eye_contact,
+                    phone=None if seen_j is None else seen_j.phone,
+                    trust=self._pedestrian_trust(j),
+                    position=true_pos[j].copy(),
+                    velocity=true_vel[j].copy(),
+                    estimate=None if est is None else est[0].copy(),
+                    estimate_cov=None if est is None else est[1].copy(),
                 )
             )
-        report = FrameReport(len(self.frames), self.time, views, false_pos, timing, cam, sensed, image)
+        report = FrameReport(len(self.frames), self.time, views, false_pos, timing, cam, sensed, image, tracks)
         self.frames.append(report)
         self._next_capture = len(self.frames) / self.capture_rate
         return report
@@ -286,6 +370,9 @@ class DriveSimulation:
         """Capture a frame when one is due (up to ``max_frames``), then the controller's inputs."""
         if self.capture_due() and (self.max_frames is None or len(self.frames) < self.max_frames):
             self.capture()
+        if self.state_source == "perceived":
+            est = self.perceived.estimates(self.time)
+            return Observation(self.time, self.state, est.positions, est.velocities, est.trusts, est.covariances)
         state, pos, vel, tr = self.controller_inputs()
         return Observation(self.time, state, pos, vel, tr)
 
@@ -296,7 +383,7 @@ class DriveSimulation:
         return "time" if self.steps >= self.max_steps else None
 
     def record(self) -> Sample:
-        return Sample(self.time, self.state, self.pedestrians()[0], self.trust.trusts())
+        return Sample(self.time, self.state, self.pedestrians()[0], self.pedestrian_trusts())
 
     def outcome(self) -> dict[str, Any]:
         """Closest approach per pedestrian over the world's sub-steps (once it has advanced)."""
@@ -335,6 +422,7 @@ class DriveResult:
     min_distance_fine: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # over plant sub-steps
     world: str = "sim"  # which DriveWorld ran it
     episode: EpisodeResult | None = None  # the engine's result it was read from
+    state: str = "true"  # where the controller's pedestrian states came from ("perceived" or "true")
 
     @property
     def distances(self) -> NDArray[np.float64]:
@@ -354,16 +442,44 @@ class DriveResult:
         """Road and sidewalk outlines (xy) and the road's unit direction (for plots)."""
         return topview.road_polygons(self.scenario.road)
 
+    def estimates_at(self, i: int) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
+        """(pedestrian index, estimated position (2,), covariance (2, 2)) of each pedestrian whose
+        track the last frame at or before sample ``i`` updated (perceived state; else empty)."""
+        t = float(self.times[i])
+        last = [f for f in self.frames if f.time <= t + 1e-9]
+        if not last:
+            return []
+        return [
+            (v.index, v.estimate[:2].copy(), v.estimate_cov[:2, :2].copy())
+            for v in last[-1].views
+            if v.estimate is not None and v.estimate_cov is not None
+        ]
+
+    def estimate_regions(self, prob: float = 0.9) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
+        """(pedestrian index, estimated position (2,), outline (n, 2) of its ``prob`` region) for
+        every frame's estimate of every pedestrian (perceived state; for figures)."""
+        return [
+            (v.index, v.estimate[:2].copy(), topview.ellipse_points(v.estimate[:2], v.estimate_cov[:2, :2], prob))
+            for f in self.frames
+            for v in f.views
+            if v.estimate is not None and v.estimate_cov is not None
+        ]
+
     def top_view_image(self, i: int, size: tuple[int, int] = (1280, 400)) -> NDArray[np.uint8]:
-        """The top view (BGR) at sample ``i``: :func:`trustnav.sim.driving.topview.top_view_image`."""
-        return topview.top_view_image(self, i, size)
+        """The top view (BGR) at sample ``i``: :func:`trustnav.sim.driving.topview.top_view_image`,
+        with the latest frame's estimates and their 90 % ellipses (perceived state)."""
+        return topview.top_view_image(self, i, size, estimates=self.estimates_at(i) or None)
 
 
 def drive_metrics(r: DriveResult) -> dict[str, Any]:
     """metrics.json: per pedestrian (scenario order) name, attentive, min_distance, final_trust,
     frames_seen, trust after the first observation and mean gain per frame; reached_goal,
     time_to_goal (s or null), margin_violations (control steps with some distance < R),
-    relaxed_steps, fallback_steps, solve times; render mode adds detection_recall."""
+    relaxed_steps, fallback_steps, solve times; render mode adds detection_recall. Distances are
+    always the true ones. With perceived states (``state``), per pedestrian the localisation
+    error of its track after each frame that saw it (median, p95, m), the velocity error
+    (median, m/s) and interval coverage (share of those frames with the truth inside the
+    estimate's 90 % region), and ``id_switches`` (changes of a pedestrian's world track)."""
     sc = r.scenario
     radius = sc.control.safety_radius
     d = r.distances
@@ -380,6 +496,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
                 "frames_seen": int(tr.size),
                 "first_trust": None if tr.size == 0 else round(float(tr[0]), 4),
                 "trust_gain_per_frame": None if tr.size < 2 else round(float((tr[-1] - tr[0]) / (tr.size - 1)), 4),
+                **(_localisation(r, j) if r.state == "perceived" else {}),
             }
         )
     gt = sum(f.ground_truth for f in r.frames)
@@ -388,6 +505,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
     out: dict[str, Any] = {
         "scenario": sc.name,
         "sensing": r.sensing,
+        "state": r.state,
         "seed": r.seed,
         "capture_rate": r.capture_rate,
         "control_rate": sc.control.rate,
@@ -405,6 +523,8 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "solve_ms_median": round(float(np.median(st)), 3) if st.size else None,
         "solve_ms_p95": round(float(np.percentile(st, 95)), 3) if st.size else None,
     }
+    if r.state == "perceived":
+        out["id_switches"] = int(sum(_id_switches(r, j) for j in range(len(sc.pedestrians))))
     if r.world != "sim":
         out["world"] = r.world
     if r.sensing == "render":
@@ -416,6 +536,34 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
             for f in r.frames
         ]  # fmt: skip
     return out
+
+
+def _localisation(r: DriveResult, j: int) -> dict[str, Any]:
+    """Localisation metrics of pedestrian ``j`` over the frames where its track was updated."""
+    err, verr, inside = [], [], []
+    for f in r.frames:
+        v = f.views[j]
+        if v.estimate is None or v.estimate_cov is None or v.position is None or v.velocity is None:
+            continue
+        d = v.estimate[:2] - v.position
+        err.append(float(np.hypot(*d)))
+        verr.append(float(np.hypot(*(v.estimate[2:] - v.velocity))))
+        inside.append(float(d @ np.linalg.solve(v.estimate_cov[:2, :2], d)) <= chi2_90)
+    if not err:
+        return {"localisation_error_median": None, "localisation_error_p95": None,
+                "velocity_error_median": None, "interval_coverage": None}  # fmt: skip
+    return {
+        "localisation_error_median": round(float(np.median(err)), 4),
+        "localisation_error_p95": round(float(np.percentile(err, 95)), 4),
+        "velocity_error_median": round(float(np.median(verr)), 4),
+        "interval_coverage": round(float(np.mean(inside)), 4),
+    }
+
+
+def _id_switches(r: DriveResult, j: int) -> int:
+    """Times pedestrian ``j``'s world track changed between the frames that saw it."""
+    ids = [f.views[j].track_id for f in r.frames if f.views[j].observed and f.views[j].track_id is not None]
+    return int(sum(a != b for a, b in itertools.pairwise(ids)))
 
 
 def _lateral(r: DriveResult) -> NDArray[np.float64]:
@@ -438,9 +586,11 @@ def run_drive(
     pipeline: Any = None,
     progress: Callable[[float, float], None] | None = None,
     max_frames: int | None = None,
+    state: str = "perceived",
 ) -> DriveResult:
     """Drive one episode in trustnav's own world with the trust-aware MPC in the loop; pure (no
-    files written).
+    files written). ``state``: where the controller's pedestrians come from ("perceived": the
+    camera, "true": the world; see the module).
 
     sensing: "keypoints" (fast) or "render" (needs ``renderer`` with ``.render(camera, people)`` and a
     perception ``pipeline``; see :func:`trustnav.sim.driving.make_render_sensing`). attentive:
@@ -451,7 +601,7 @@ def run_drive(
     """
     sensor = make_sensor(sensing, renderer, pipeline)
     sc = prepare_scenario(scenario, attentive, control_rate)
-    sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate)
+    sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
     return drive(sim, sensing, progress=progress, max_frames=max_frames)
 
 
@@ -524,6 +674,7 @@ def drive_result(sim: DriveSimulation, sensing: str, episode: EpisodeResult) -> 
         min_distance_fine=sim.min_distance_fine.copy() if sim.steps else np.zeros(0),
         world=sim.world.name,
         episode=episode,
+        state=sim.state_source,
     )
 
 

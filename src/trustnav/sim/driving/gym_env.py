@@ -9,9 +9,13 @@ Importing this module registers ``trustnav/Drive-v0``::
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
 Action: (steer rad, acceleration m/s^2) within the vehicle's limits, sent to the car every control
-period (1 / control.rate s; it acts after the actuation latency). Observation: ``ego`` (x, y, yaw, v),
-``pedestrians`` (N, 2) positions and ``velocities`` (N, 2) (from the world, with the scenario's
-noise), ``trusts`` (N,) from perception (0 until a pedestrian is first observed), ``time``.
+period (1 / control.rate s; it acts after the actuation latency). Observation: ``ego`` (x, y, yaw, v)
+and up to ``max_pedestrians`` (K) pedestrians, nearest first, zero-padded: ``pedestrians`` (K, 2)
+positions, ``velocities`` (K, 2), ``covariances`` (K, 4, 4) of (x, y, v_x, v_y), ``trusts`` (K,),
+``present`` (K,) 1 for a slot that holds a pedestrian; ``time``. With ``state="perceived"``
+(default) they are the camera's world tracks (positions from the image, trust per track, 0
+until a track has one); with ``state="true"`` the world's pedestrians in scenario order (with the
+scenario's noise, covariances 0) and trusts from perception (0 until first observed).
 Reward: progress along the lane (m) minus 10 per step with a pedestrian inside the margin R;
 terminated at the goal, truncated after ``scenario.duration``.
 
@@ -32,7 +36,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive_result
+from trustnav.sim.driving.episode import STATES, DriveResult, DriveSimulation, drive_result
 from trustnav.sim.driving.sensing import RenderSensor, make_render_sensing
 from trustnav.sim.driving.world import DriveScenario, load_drive_scenario
 from trustnav.sim.engine import Decision, Rollout
@@ -56,10 +60,21 @@ class DriveEnv(gym.Env):
         render_mode: str | None = "rgb_array",
         view: str = "top",
         render_fn: Callable[[DriveResult], NDArray[np.uint8]] | None = None,
+        state: str = "perceived",
+        max_pedestrians: int = 8,
     ) -> None:
         sc = load_drive_scenario(scenario) if isinstance(scenario, str) else scenario
         if sensing not in ("keypoints", "render"):
             raise ValueError(f"sensing must be 'keypoints' or 'render', got {sensing!r}")
+        if state not in STATES:
+            raise ValueError(f"state must be one of {STATES}, got {state!r}")
+        n_true = len(sc.pedestrians)
+        if isinstance(max_pedestrians, bool) or not isinstance(max_pedestrians, int) or not 1 <= max_pedestrians <= 256:
+            raise ValueError(f"max_pedestrians must be an integer in [1, 256], got {max_pedestrians!r}")
+        if state == "true" and max_pedestrians < n_true:
+            raise ValueError(f"max_pedestrians ({max_pedestrians}) must hold the scenario's {n_true} pedestrians")
+        self.state = state
+        self.max_pedestrians = max_pedestrians
         if view not in ("top", "camera"):
             raise ValueError(f"view must be 'top' or 'camera', got {view!r}")
         self.scenario = sc.with_attention(attentive)
@@ -71,14 +86,16 @@ class DriveEnv(gym.Env):
         model = self.scenario.vehicle.model()
         lo, hi = model.input_bounds()
         self.action_space = spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
-        n = len(self.scenario.pedestrians)
+        n = max_pedestrians
         big = 1e4
         self.observation_space = spaces.Dict(
             {
                 "ego": spaces.Box(-big, big, shape=(4,), dtype=np.float64),
                 "pedestrians": spaces.Box(-big, big, shape=(n, 2), dtype=np.float64),
                 "velocities": spaces.Box(-big, big, shape=(n, 2), dtype=np.float64),
+                "covariances": spaces.Box(-big, big, shape=(n, 4, 4), dtype=np.float64),
                 "trusts": spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float64),
+                "present": spaces.MultiBinary(n),
                 "time": spaces.Box(0.0, big, shape=(1,), dtype=np.float64),
             }
         )
@@ -96,7 +113,9 @@ class DriveEnv(gym.Env):
             self._renderer, self._pipeline = make_render_sensing(self.scenario, self.capture_rate)
             sensor = RenderSensor(self._renderer, self._pipeline)
         run_seed = int(self.np_random.integers(2**31)) if seed is None else int(seed)
-        self.sim = DriveSimulation(self.scenario, seed=run_seed, sensor=sensor, capture_rate=self.capture_rate)
+        self.sim = DriveSimulation(
+            self.scenario, seed=run_seed, sensor=sensor, capture_rate=self.capture_rate, state=self.state
+        )
         sc = self.scenario.control
         self.rollout = Rollout(self.sim, horizon=sc.horizon, safety_radius=sc.safety_radius)
         return self._observe(), self._info()
@@ -141,11 +160,22 @@ class DriveEnv(gym.Env):
         """The world's observation (captures a frame when due), as the observation space has it."""
         assert self.rollout is not None
         o = self.rollout.observe()
+        k = self.max_pedestrians
+        m = min(len(o.positions), k)  # the nearest k when more are known
+        order = np.argsort(np.linalg.norm(o.positions - o.ego[:2], axis=1), kind="stable")[:m] if m else []
+        pos, vel, cov, tr = np.zeros((k, 2)), np.zeros((k, 2)), np.zeros((k, 4, 4)), np.zeros(k)
+        pos[:m], vel[:m], tr[:m] = o.positions[order], o.velocities[order], o.trusts[order]
+        if o.covariances is not None:
+            cov[:m] = o.covariances[order]
+        present = np.zeros(k, dtype=np.int8)
+        present[:m] = 1
         return {
             "ego": o.ego,
-            "pedestrians": o.positions,
-            "velocities": o.velocities,
-            "trusts": o.trusts,
+            "pedestrians": pos,
+            "velocities": vel,
+            "covariances": cov,
+            "trusts": tr,
+            "present": present,
             "time": np.array([o.time]),
         }
 

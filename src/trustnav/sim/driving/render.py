@@ -23,8 +23,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from trustnav.geometry.camera import CameraPose
 from trustnav.sim.driving.body import Appearance, Skeleton, body_dims
-from trustnav.sim.driving.camera import CameraPose
 from trustnav.sim.driving.street import StreetSpec
 
 __all__ = ["PyBulletRenderer", "Renderer", "StreetSpec"]
@@ -643,6 +643,10 @@ class PyBulletRenderer:
         self._place_people(people)
         spec = camera.spec
         w, h = spec.width, spec.height
+        if spec.principal != (0.5 * w, 0.5 * h):
+            raise ValueError(
+                f"the renderer draws the principal point at the image centre, got (cx, cy) = {spec.principal}"
+            )
         view = self._p.computeViewMatrix(
             cameraEyePosition=[float(v) for v in camera.position],
             cameraTargetPosition=[float(v) for v in camera.look_target()],

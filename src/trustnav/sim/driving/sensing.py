@@ -9,9 +9,13 @@ and `lin_comb` / `agg_trust` in :class:`trustnav.trust.TrustEstimator`.
   pedestrians by overlap (IoU) with each pedestrian's projected box; the observation of a track
   updates the trust memory of the pedestrian it is associated with.
 * ``keypoints``: the 3-D joints are projected; joints outside the image or behind the camera are
-  culled; pixel noise scaled to the person's image height, random dropout, and confidences that
-  fall for the joints the body hides (the far eye and ear of a profile, the face of a bowed head,
-  the far side of the body) stand in for detection and landmarks; everything after is the same.
+  culled; the detector's error model stands in for detection and landmarks: each joint moved up
+  by BlazePose's median bias (:data:`DETECTOR_V_BIAS`), all joints of a person shifted together by
+  a common vertical offset and each by its own noise, with a heavy tail (a share of joints placed
+  badly), all as shares of the person's image height measured on rendered frames by
+  ``benchmarks/calibrate_keypoints.py``; random dropout, and
+  confidences that fall for the joints the body hides (the far eye and ear of a profile, the face
+  of a bowed head, the far side of the body); everything after is the same.
 
 A pedestrian not observed in a frame gets no trust update (its last trust stays); one never
 observed has trust 0 (gamma = gamma_ini, the safe default).
@@ -28,12 +32,12 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.geometry.camera import NEAR, CameraPose
 from trustnav.perception.confidence import HeadConfidenceParams
 from trustnav.perception.looking import LookingModel, normalise_keypoints
 from trustnav.perception.phone import PoseGeometryPhoneClassifier, phone_label
 from trustnav.perception.types import Person, box_iou
 from trustnav.sim.driving.body import Appearance, Skeleton
-from trustnav.sim.driving.camera import NEAR, CameraPose
 from trustnav.sim.driving.world import SensingSpec, street_of
 from trustnav.trust import PAPER_TRUST, Observation, TrustEstimator, TrustParams
 
@@ -56,19 +60,31 @@ Mode = Literal["keypoints", "render"]
 # perception/confidence.py
 _FACE_PHI = np.radians([0.0, 35.0, -35.0, 90.0, -90.0])
 _HEAD = HeadConfidenceParams()
+#: BlazePose's median vertical error per COCO joint on rendered people (detected - true, share of
+#: the person's projected height, negative = reported higher), 334 people 8-30 m away
+#: (benchmarks/data/keypoint_calibration.json).
+DETECTOR_V_BIAS = np.array(
+    [-0.028, -0.022, -0.022, -0.012, -0.010, -0.006, -0.005, -0.016, -0.014,
+     -0.012, -0.011, 0.000, -0.001, -0.016, -0.017, -0.041, -0.040]
+)  # fmt: skip
 _LEFT = np.array([5, 7, 9, 11, 13, 15])
 _RIGHT = np.array([6, 8, 10, 12, 14, 16])
 
 
 @dataclass(frozen=True)
 class SensedPerson:
-    """One person perceived in a frame, associated with world pedestrian ``index``."""
+    """One person perceived in a frame. ``index``: the world pedestrian it is (a label for scoring
+    and for the ``true``-state mode; None for a detection of no pedestrian); ``track_id``: the
+    image tracker's ID (render) or the pedestrian's index (keypoints), replaced in the frame's
+    report by the world track it joined (perceived state); ``trust``: that track's trust after the
+    frame (None: not known, e.g. a person not placed on the ground)."""
 
-    index: int
+    index: int | None
     track_id: int
     person: Person
     eye_contact: float
     phone: float
+    trust: float | None = None
 
     @property
     def phone_label(self) -> str:
@@ -84,10 +100,14 @@ class PedestrianView:
     in_view: bool  # enough of the body inside the image to be detectable (ground truth)
     box: NDArray[np.float64] | None  # projected ground-truth box [x1, y1, x2, y2] (px), None if not in view
     observed: bool = False  # perceived and associated: its trust was updated by this frame
-    track_id: int | None = None
+    track_id: int | None = None  # the world track it joined (perceived state) or its image track
     eye_contact: float | None = None
     phone: float | None = None
     trust: float | None = None  # after this frame; None: never observed yet
+    position: NDArray[np.float64] | None = None  # true (x, y) at the frame (scoring)
+    velocity: NDArray[np.float64] | None = None  # true (v_x, v_y)
+    estimate: NDArray[np.float64] | None = None  # its track's (x, y, v_x, v_y) after this frame (perceived)
+    estimate_cov: NDArray[np.float64] | None = None  # ... and its covariance (4, 4)
 
 
 @dataclass
@@ -102,6 +122,7 @@ class FrameReport:
     camera: CameraPose | None = field(default=None, repr=False)
     sensed: list[SensedPerson] = field(default_factory=list, repr=False)
     image: NDArray[np.uint8] | None = field(default=None, repr=False)  # the rendered frame (RGB), render mode
+    tracks: tuple[Any, ...] = field(default=(), repr=False)  # perceived: every live world track after the frame
 
     @property
     def detections(self) -> int:
@@ -214,8 +235,13 @@ class KeypointSensor:
         box = projected_box(camera, skeleton)
         assert box is not None
         uv, inside = _visible_joints(camera, skeleton)
-        sigma = s.pixel_noise * (box[3] - box[1])
+        size = box[3] - box[1]
+        sigma = s.pixel_noise * size
         noise = self.rng.normal(0.0, 1.0, size=(17, 2)) * sigma
+        if s.detector_bias:  # the detector's error model (see the module)
+            noise[:, 1] += (DETECTOR_V_BIAS + self.rng.normal(0.0, s.common_noise)) * size
+            wild = self.rng.random((17, 2)) < s.outlier_rate  # the heavy tail: a joint placed badly
+            noise += wild * self.rng.normal(0.0, s.outlier_noise, size=(17, 2)) * size
         drop = self.rng.random(17) < s.dropout
         jitter = self.rng.uniform(0.9, 1.0, size=17)
         w, h = camera.spec.width, camera.spec.height
@@ -266,19 +292,22 @@ class RenderSensor:
         t1 = _time.perf_counter()
         people = self.pipeline(frame)
         t2 = _time.perf_counter()
+        # the true projected boxes label each detection for scoring (and for the "true"-state mode);
+        # in the perceived-state mode nothing downstream uses the label
         boxes = [projected_box(camera, sk) for sk, _ in bodies]
-        out: list[SensedPerson] = []
-        matched = 0
+        label: list[int | None] = [None] * len(people)
         if people:
             iou = np.array([[0.0 if b is None else box_iou(tp.person.bbox, b) for b in boxes] for tp in people])
             rows, cols = linear_sum_assignment(-iou)
             for r, c in zip(rows, cols, strict=True):
                 if iou[r, c] >= self.min_iou:
-                    tp = people[r]
-                    out.append(SensedPerson(int(c), tp.track_id, tp.person, tp.eye_contact, tp.phone))
-                    matched += 1
+                    label[r] = int(c)
+        out = [
+            SensedPerson(j, tp.track_id, tp.person, tp.eye_contact, tp.phone)
+            for j, tp in zip(label, people, strict=True)
+        ]
         timing = {"render": t1 - t0, "perception": t2 - t1}
-        return out, frame, len(people) - matched, timing
+        return out, frame, sum(j is None for j in label), timing
 
 
 class TrustTracker:
@@ -291,6 +320,8 @@ class TrustTracker:
         self.observations = np.zeros(n, dtype=int)
 
     def update(self, sensed: Sequence[SensedPerson], time: float) -> None:
+        """Update from the frame's people labelled with a pedestrian (unlabelled ones are skipped)."""
+        sensed = [s for s in sensed if s.index is not None]
         obs = [
             Observation(
                 track_id=s.index,
@@ -304,7 +335,7 @@ class TrustTracker:
         ]
         self.estimator.update(obs, time=time)
         for s in sensed:
-            self.observations[s.index] += 1
+            self.observations[s.index] += 1  # type: ignore[index]
 
     def trusts(self) -> NDArray[np.float64]:
         """(N,) trusts for the controller; 0 (gamma_ini) for a pedestrian never observed."""

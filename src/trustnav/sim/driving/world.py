@@ -22,8 +22,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import BoundedProportionalReference, KinematicBicycle, LaneTrackingCost, MpcConfig
+from trustnav.geometry.camera import CameraSpec
+from trustnav.perception.localisation import LocaliserConfig
+from trustnav.perception.world_tracking import WorldTrackerConfig
 from trustnav.sim.driving import body
-from trustnav.sim.driving.camera import CameraSpec
 from trustnav.sim.driving.street import StreetSpec
 from trustnav.trust import PAPER_GAMMA_CARLA, GammaParams
 
@@ -124,7 +126,9 @@ class ControlSpec:
     """Controller: rate (Hz), MPC step dt and horizon N_h, margin R, gamma(trust) of `weight`,
     latency compensation (s), CBF timing and the bounded proportional reference (gain, v_max).
     ``deadline``: the controller's wall-clock budget per step (s); large by default so that an
-    episode does not depend on the machine's speed (simulated time is not wall time)."""
+    episode does not depend on the machine's speed (simulated time is not wall time).
+    ``confidence``: with perceived pedestrians, the probability with which R is kept from the true
+    person (R grows by the estimate's uncertainty along the line of approach)."""
 
     rate: float = 20.0
     dt: float = 0.08
@@ -136,6 +140,7 @@ class ControlSpec:
     reference_gain: float = 1.0
     reference_v_max: float = 8.0
     deadline: float = 10.0
+    confidence: float = 0.95
 
     def __post_init__(self) -> None:
         _positive("control rate", self.rate)
@@ -145,6 +150,7 @@ class ControlSpec:
     def config(self) -> MpcConfig:
         extra = {"deadline": self.deadline} if "deadline" in MpcConfig.__dataclass_fields__ else {}
         return MpcConfig(
+            confidence=self.confidence,
             horizon=self.horizon,
             dt=self.dt,
             safety_radius=self.safety_radius,
@@ -169,6 +175,17 @@ class SensingSpec:
     ``miss_rate`` (probability that a visible person is not detected in a frame), ``min_joints``
     (joints inside the image needed to detect a person), ``min_height_px``. Trust memory:
     ``keep_time`` (s; inf keeps the last trust of a pedestrian who left the view, as the paper).
+    ``detector_bias``: the detector's error model: each joint moved as BlazePose does on rendered
+    frames (``sensing.DETECTOR_V_BIAS``), all joints of a person shifted by a common vertical
+    offset of sigma ``common_noise``, and a share ``outlier_rate`` of joints off by sigma
+    ``outlier_noise`` more (shares of the person's image height). Perceived states
+    (:mod:`trustnav.perception.localisation`, :mod:`~trustnav.perception.world_tracking`):
+    ``stature`` and ``stature_sigma`` (m, the height prior), ``pitch_sigma_deg`` (how well the
+    camera's pitch is known: the simulated car body does not pitch: 0.03 deg, the
+    detector's common vertical shift, by default),
+    ``accel_psd`` (m^2/s^3, the tracker's walking model), ``track_keep`` (s a track lives unseen
+    where the camera should see it; out of view beside the
+    car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
     """
 
     position_noise: float = 0.0
@@ -179,16 +196,46 @@ class SensingSpec:
     min_joints: int = 9
     min_height_px: float = 24.0
     keep_time: float = math.inf
+    detector_bias: bool = True
+    common_noise: float = 0.009
+    outlier_rate: float = 0.1
+    outlier_noise: float = 0.04
+    stature: float = 1.70
+    stature_sigma: float = 0.09
+    pitch_sigma_deg: float = 0.03
+    accel_psd: float = 0.25
+    track_keep: float = 2.5
 
     def __post_init__(self) -> None:
-        for name in ("position_noise", "velocity_noise", "pixel_noise", "min_height_px"):
+        if not isinstance(self.detector_bias, bool):
+            raise ValueError(f"detector_bias must be true or false, got {self.detector_bias!r}")
+        for name in (
+            "position_noise",
+            "velocity_noise",
+            "pixel_noise",
+            "min_height_px",
+            "common_noise",
+            "outlier_noise",
+        ):
             _positive(name, getattr(self, name), allow_zero=True)
         _positive("keep_time", self.keep_time, allow_zero=True, allow_inf=True)
-        for name in ("dropout", "miss_rate"):
+        for name in ("dropout", "miss_rate", "outlier_rate"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
         if not isinstance(self.min_joints, int) or not 1 <= self.min_joints <= 17:
             raise ValueError(f"min_joints must be an integer in [1, 17], got {self.min_joints!r}")
+        self.localiser()  # validates stature, stature_sigma, pitch_sigma_deg
+        self.tracker()  # validates accel_psd, track_keep
+
+    def localiser(self) -> LocaliserConfig:
+        """The ground-plane localiser's configuration."""
+        return LocaliserConfig(
+            stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
+        )
+
+    def tracker(self) -> WorldTrackerConfig:
+        """The world tracker's configuration."""
+        return WorldTrackerConfig(accel_psd=self.accel_psd, keep_seconds=self.track_keep)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,282 @@
+"""Monocular ground-plane localisation: where a detected person stands, with its covariance.
+
+One camera, one frame, one person: the 17 COCO keypoints are the image of a standing body whose
+joints lie at known fractions of its stature above the soles (anthropometric ratios: eyes 0.936,
+shoulders 0.818, hips 0.53, knees 0.285, ankles ~0.04-0.05; Drillis & Contini 1966, Winter's
+*Biomechanics*; the renderer's bodies agree within 0.01). The ratios used are where the detector
+*reports* those joints: BlazePose places them higher than the true joints by a share of the
+person's height (ankles +0.040, knees +0.017, nose +0.028, eyes +0.022; measured on 334 rendered
+people 8-30 m away, ``benchmarks/calibrate_keypoints.py``). The body's centre line (u of the
+midpoints of the left/right pairs) and every joint's v are fitted by weighted least squares in the
+pixels for four unknowns:
+
+* the ground position (x, y) of the person, on the surface the map gives there (road, or a
+  sidewalk raised by its kerb: ``ground_height(xy)``);
+* the stature H, with the prior N(``stature``, ``stature_sigma``^2): the body's pixel size then
+  says how far it is (the height prior of MonoLoco, Bertoni et al., ICCV 2019, in closed form);
+* a pitch offset of the camera, with the prior N(0, ``pitch_sigma``^2) (braking, bumps): where the
+  soles meet the ground says how far the person is (the flat-ground model) only as far as the
+  pitch is known, so an uncertain pitch hands the range over to the height prior.
+
+The fit's covariance (Gauss-Newton, (J' W J + priors)^-1) is the estimate's uncertainty: pixel
+noise (a share of the person's pixel height, plus a floor), the spread of the body ratios, the
+stature prior and the pitch. The position's marginal 2x2 block is returned in world coordinates.
+Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from trustnav.geometry.camera import CameraPose
+from trustnav.perception.types import Person
+
+__all__ = ["BODY_POINTS", "GroundEstimate", "GroundLocaliser", "LocaliserConfig", "chi2_90"]
+
+#: The body's centre-line points: (name, COCO joints, height above the soles / stature where the
+#: detector reports them (true joint + the detector's median upward bias), spread of that ratio
+#: across people, poses (a bowed head, a walking knee) and frames).
+BODY_POINTS: tuple[tuple[str, tuple[int, ...], float, float], ...] = (
+    ("nose", (0,), 0.930, 0.03),
+    ("eyes", (1, 2), 0.952, 0.025),
+    ("ears", (3, 4), 0.936, 0.02),
+    ("shoulders", (5, 6), 0.815, 0.008),
+    ("hips", (11, 12), 0.527, 0.008),
+    ("knees", (13, 14), 0.300, 0.01),
+    ("ankles", (15, 16), 0.092, 0.008),
+)
+chi2_90 = 4.605  # the 90 % quantile of chi^2 with 2 degrees of freedom (a 2-D Gaussian region)
+
+
+@dataclass(frozen=True)
+class LocaliserConfig:
+    """How a person is placed on the ground.
+
+    stature / stature_sigma: the height prior (m; adults' standing height, ~1.70 +- 0.09);
+    pitch_sigma_deg: how well the camera's pitch is known (deg; 0 = exactly, a car that brakes
+    pitches by 1-2 deg); pixel_sigma: keypoint noise as a share of the person's pixel height,
+    pixel_floor: its floor (px); lateral_sigma: how far the centre line wanders sideways (share of
+    the stature: a walker's arms and legs); body_sigma: where on the body "the person's position"
+    is (m, isotropic: a step, a lean, the feet apart; added to the fit's covariance);
+    min_confidence: keypoints below it are not used; max_distance: estimates farther than this
+    (m) are refused (a person on the horizon)."""
+
+    stature: float = 1.70
+    stature_sigma: float = 0.09
+    pitch_sigma_deg: float = 0.5
+    pixel_sigma: float = 0.007
+    pixel_floor: float = 0.3
+    lateral_sigma: float = 0.02
+    body_sigma: float = 0.03
+    min_confidence: float = 0.3
+    max_distance: float = 80.0
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("stature", self.stature, 0.5, 2.5),
+            ("stature_sigma", self.stature_sigma, 1e-3, 1.0),
+            ("pitch_sigma_deg", self.pitch_sigma_deg, 0.0, 20.0),
+            ("pixel_sigma", self.pixel_sigma, 0.0, 0.5),
+            ("pixel_floor", self.pixel_floor, 0.01, 100.0),
+            ("lateral_sigma", self.lateral_sigma, 0.0, 0.5),
+            ("body_sigma", self.body_sigma, 0.0, 2.0),
+            ("min_confidence", self.min_confidence, 0.0, 1.0),
+            ("max_distance", self.max_distance, 1.0, 1e4),
+        )
+        for name, v, lo, hi in checks:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {v!r}")
+
+
+@dataclass(frozen=True)
+class GroundEstimate:
+    """A person placed on the ground: ``position`` (x, y) in the world (m), its ``covariance``
+    (2 x 2, m^2), the ``distance`` from the camera over the ground (m), the fitted ``stature``
+    (m), the camera's pitch offset (rad), the body points used and the fit's reduced chi^2
+    (~1 or below for a body that fits the model; the covariance is scaled by it when above 1)."""
+
+    position: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    distance: float
+    stature: float
+    pitch_offset: float
+    points: int
+    fit: float = math.nan
+
+    def relative_to(self, camera: CameraPose) -> tuple[float, float]:
+        """(ahead, left) of the camera over the ground (m): along its heading and to its left."""
+        d = self.position - camera.position[:2]
+        c, s = math.cos(camera.yaw), math.sin(camera.yaw)
+        return float(d[0] * c + d[1] * s), float(-d[0] * s + d[1] * c)
+
+    def relative_covariance(self, camera: CameraPose) -> NDArray[np.float64]:
+        """The covariance in (ahead, left) of the camera."""
+        c, s = math.cos(camera.yaw), math.sin(camera.yaw)
+        r = np.array([[c, s], [-s, c]])
+        return r @ self.covariance @ r.T
+
+    def mapped(self, m: ArrayLike) -> GroundEstimate:
+        """The estimate in another ground frame: position m p, covariance m S m' (m 2x2)."""
+        mm = np.asarray(m, dtype=float).reshape(2, 2)
+        return replace(self, position=mm @ self.position, covariance=mm @ self.covariance @ mm.T)
+
+    def contains(self, xy: ArrayLike, chi2: float = chi2_90) -> bool:
+        """Whether ``xy`` lies inside the estimate's region of Mahalanobis^2 <= ``chi2`` (90 %)."""
+        d = np.asarray(xy, dtype=float).reshape(2) - self.position
+        return float(d @ np.linalg.solve(self.covariance, d)) <= chi2
+
+
+GroundHeight = Callable[[NDArray[np.float64]], float]
+
+
+def _flat(_: NDArray[np.float64]) -> float:
+    return 0.0
+
+
+class GroundLocaliser:
+    """Places each detected person on the ground: :meth:`locate` (one person) with its covariance."""
+
+    def __init__(self, config: LocaliserConfig | None = None) -> None:
+        self.config = config or LocaliserConfig()
+        self._ratio = np.array([p[2] for p in BODY_POINTS])
+        self._ratio_sigma = np.array([p[3] for p in BODY_POINTS])
+
+    def _observations(self, person: Person) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        """The pixels the fit uses: per body point seen, the u of its centre (a pair's midpoint)
+        and, per joint, its v; with each one's body ratio, and standard deviations (px, before
+        scaling by the person's size) and confidence weights. Returns (obs, ratio, sigma_rel, weight)
+        where the first ``n_u`` entries are u's (see :meth:`locate`)."""
+        cfg = self.config
+        kp, conf = person.keypoints, person.confidences
+        u_obs, u_ratio, u_sig, u_w = [], [], [], []
+        v_obs, v_ratio, v_sig, v_w = [], [], [], []
+        for i, (_, joints, _r, _s) in enumerate(BODY_POINTS):
+            ok = [j for j in joints if conf[j] >= cfg.min_confidence and np.all(np.isfinite(kp[j]))]
+            if not ok:
+                continue
+            c = conf[ok]
+            u_obs.append(float(c @ kp[ok, 0] / c.sum()))
+            u_ratio.append(self._ratio[i])
+            # one joint of a pair: off the centre line by up to half a body's width
+            u_sig.append(math.hypot(cfg.pixel_sigma, cfg.lateral_sigma if len(ok) == len(joints) else 0.06))
+            u_w.append(float(c.mean()))
+            for j in ok:
+                v_obs.append(float(kp[j, 1]))
+                v_ratio.append(self._ratio[i])
+                v_sig.append(math.hypot(cfg.pixel_sigma, self._ratio_sigma[i]))
+                v_w.append(float(conf[j]))
+        self._n_u = len(u_obs)
+        return (
+            np.array(u_obs + v_obs),
+            np.array(u_ratio + v_ratio),
+            np.array(u_sig + v_sig),
+            np.array(u_w + v_w),
+        )
+
+    def locate(
+        self, person: Person, camera: CameraPose, ground_height: GroundHeight | None = None
+    ) -> GroundEstimate | None:
+        """The ground position of ``person`` seen by ``camera`` (None when fewer than two body
+        points are seen confidently, or the fit does not place the person in front of the camera
+        within ``max_distance``). ``ground_height(xy)``: height of the walking surface there (m;
+        default flat ground at z = 0).
+
+        Each pixel's weight is its keypoint's confidence over its variance; a keypoint that
+        disagrees with the rest of the body (a foot placed on the shadow) is down-weighted by
+        iteratively reweighted least squares (Cauchy, scale 2.5 sigma)."""
+        cfg = self.config
+        ground = ground_height or _flat
+        obs, ratio, sig_rel, conf_w = self._observations(person)
+        n_u = self._n_u
+        v_ratio, v_obs = ratio[n_u:], obs[n_u:]
+        if n_u < 2 or v_ratio.size < 2 or np.ptp(v_ratio) < 0.2:
+            return None
+        f = camera.focal_px
+        # pixel stature from the highest and lowest joints seen; first range from the height prior
+        lo, hi = int(np.argmin(v_ratio)), int(np.argmax(v_ratio))
+        size_px = (v_obs[lo] - v_obs[hi]) / (v_ratio[hi] - v_ratio[lo])
+        if not size_px > 1.0:
+            return None
+        z0 = f * cfg.stature / size_px
+        if not 0.5 < z0 < 2.0 * cfg.max_distance:
+            return None
+        u_lo = obs[int(np.argmin(ratio[:n_u]))]
+        start = camera.back_project([[u_lo, v_obs[lo]]], [z0])[0]
+        sigma = np.hypot(cfg.pixel_floor, size_px * sig_rel)
+        base_w = conf_w / sigma**2
+        w = base_w.copy()
+        pitch_sigma = math.radians(cfg.pitch_sigma_deg)
+        theta = np.array([start[0], start[1], cfg.stature, 0.0])
+        prior_w = np.array([0.0, 0.0, 1.0 / cfg.stature_sigma**2, 1.0 / max(pitch_sigma, 1e-6) ** 2])
+        prior_mean = np.array([0.0, 0.0, cfg.stature, 0.0])
+        g = float(ground(theta[:2]))
+        for it in range(15):
+            if it < 5:
+                g = float(ground(theta[:2]))
+            pred, jac = self._model(camera, theta, ratio, n_u, g)
+            if pred is None:
+                return None
+            r = obs - pred
+            if it >= 2:  # robust reweighting once the fit is near
+                z = r / sigma
+                w = base_w / (1.0 + (z / 2.5) ** 2)
+            normal = jac.T @ (w[:, None] * jac) + np.diag(prior_w)
+            grad = jac.T @ (w * r) - prior_w * (theta - prior_mean)
+            try:
+                step = np.linalg.solve(normal, grad)
+            except np.linalg.LinAlgError:
+                return None
+            theta = theta + step
+            if abs(step[0]) + abs(step[1]) < 1e-4 and it >= 5:
+                break
+        pred, jac = self._model(camera, theta, ratio, n_u, g)
+        if pred is None:
+            return None
+        normal = jac.T @ (w[:, None] * jac) + np.diag(prior_w)
+        # a body that does not fit the model (a detection stretched or squashed) is not believed
+        # more than its residuals allow: the covariance grows by the reduced chi^2 when above 1
+        fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
+        try:
+            cov = np.linalg.inv(normal) * max(1.0, fit)
+        except np.linalg.LinAlgError:
+            return None
+        pos = theta[:2].copy()
+        dist = float(np.hypot(*(pos - camera.position[:2])))
+        ahead = float((pos - camera.position[:2]) @ np.array([math.cos(camera.yaw), math.sin(camera.yaw)]))
+        if not (np.all(np.isfinite(cov)) and ahead > 0.3 and dist <= cfg.max_distance):
+            return None
+        c2 = 0.5 * (cov[:2, :2] + cov[:2, :2].T) + cfg.body_sigma**2 * np.eye(2)
+        return GroundEstimate(pos, c2, dist, float(theta[2]), float(theta[3]), n_u, fit)
+
+    @staticmethod
+    def _model(
+        camera: CameraPose, theta: NDArray[np.float64], ratio: NDArray[np.float64], n_u: int, ground: float
+    ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64]]:
+        """The fitted pixels at parameters (x, y, H, pitch offset): u of the first ``n_u`` body
+        points, v of the joints after them; and their Jacobian (central differences)."""
+
+        def pixels(x: float, y: float, h: float, pitch: float) -> NDArray[np.float64] | None:
+            pose = CameraPose(camera.spec, camera.position, camera.yaw, camera.pitch + pitch, camera.roll)
+            pts = np.column_stack([np.full(len(ratio), x), np.full(len(ratio), y), ground + ratio * h])
+            uv, depth = pose.project(pts)
+            if np.any(depth < 0.3):
+                return None
+            return np.concatenate([uv[:n_u, 0], uv[n_u:, 1]])
+
+        pred = pixels(*theta)
+        if pred is None:
+            return None, np.zeros(0)
+        jac = np.empty((len(ratio), 4))
+        for k, eps in enumerate((1e-3, 1e-3, 1e-3, 1e-5)):
+            d = np.zeros(4)
+            d[k] = eps
+            a, b = pixels(*(theta + d)), pixels(*(theta - d))
+            if a is None or b is None:
+                return None, np.zeros(0)
+            jac[:, k] = (a - b) / (2 * eps)
+        return pred, jac

@@ -1,0 +1,348 @@
+"""Pedestrians followed on the ground: a Kalman filter per person in world (road) coordinates,
+fed by :class:`~trustnav.perception.localisation.GroundEstimate` s.
+
+The camera moves with the car; placing each detection in the world with the ego's pose
+(odometry) makes a person who stands still stand still for the filter, whatever the car does, so
+identity survives frames that are a second apart and people who leave the view for a while.
+
+* **state** (x, y, v_x, v_y) under two motion models mixed by an interacting multiple model
+  filter (IMM; Blom & Bar-Shalom 1988): *standing* (velocity 0, the position wanders as a random
+  walk of ``standing_psd`` m^2/s) and *walking* (constant velocity, white-noise acceleration of
+  ``accel_psd`` m^2/s^3); a person switches between them at ``switch_rate`` per second. A person
+  seen standing is predicted standing, with the walking model's share of the uncertainty, which
+  grows honestly between frames and while the person is out of sight (a single constant-velocity
+  filter would lend every bystander the velocity noise of a walker);
+* **association** of a frame's estimates with the tracks predicted to the frame's time: squared
+  Mahalanobis distance of the ground positions (gated at ``gate``), minus a bonus for image
+  overlap with the track's last box when that box is recent; one-to-one by the Hungarian method;
+* **birth** of a tentative track from an estimate no track takes, **confirmation** after
+  ``confirm_hits`` hits, **deletion** of a tentative track at its first miss; a confirmed track
+  is deleted when it should have been seen and was not for ``keep_seconds`` (its predicted
+  position inside the camera's view), when it is out of view and unseen for ``out_of_view_seconds``
+  (people who left the view beside the car stay that long, predicted with growing uncertainty),
+  when it is more than ``behind`` metres behind the camera (passed), or when its position
+  uncertainty exceeds ``max_sigma``.
+
+:meth:`WorldTracker.predict` gives every live track's mean and covariance at any time (the
+controller's rate is not the camera's).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from trustnav.geometry.camera import CameraPose
+from trustnav.perception.localisation import GroundEstimate
+from trustnav.perception.types import box_iou
+
+__all__ = ["TrackState", "WorldTrack", "WorldTracker", "WorldTrackerConfig"]
+
+
+@dataclass(frozen=True)
+class WorldTrackerConfig:
+    """accel_psd: white-noise acceleration of the walking model (m^2/s^3: pedestrians speed up,
+    slow down and turn); standing_psd: the standing model's random walk (m^2/s: a bystander's
+    shuffle); switch_rate: how often a person starts or stops walking (1/s); initial_standing: the
+    standing model's probability for a new track; initial_speed_sigma: the velocity prior of a
+    new track (m/s); gate: squared Mahalanobis
+    distance beyond which an estimate cannot join a track (chi^2_2 99.7 % = 11.6);
+    overlap_bonus: subtracted from the cost per unit of box IoU when the track's last box is at
+    most ``overlap_seconds`` old; confirm_hits: hits that confirm a track; keep_seconds: how long a
+    track lives unseen where the camera should see it; out_of_view_seconds: how long outside the
+    view; behind: metres behind the camera beyond which a track is dropped; max_sigma: the
+    position sigma (m) beyond which a track is dropped."""
+
+    accel_psd: float = 0.25
+    standing_psd: float = 0.005
+    switch_rate: float = 0.1
+    initial_standing: float = 0.5
+    initial_speed_sigma: float = 0.8
+    gate: float = 11.6
+    overlap_bonus: float = 4.0
+    overlap_seconds: float = 0.25
+    confirm_hits: int = 2
+    keep_seconds: float = 2.5
+    out_of_view_seconds: float = 15.0
+    behind: float = 6.0
+    max_sigma: float = 4.0
+
+    def __post_init__(self) -> None:
+        for name, lo, hi in (
+            ("accel_psd", 0.0, 100.0),
+            ("standing_psd", 0.0, 10.0),
+            ("switch_rate", 0.0, 100.0),
+            ("initial_standing", 0.0, 1.0),
+            ("initial_speed_sigma", 0.01, 20.0),
+            ("gate", 0.1, 1e4),
+            ("overlap_bonus", 0.0, 1e4),
+            ("overlap_seconds", 0.0, 60.0),
+            ("keep_seconds", 0.0, 600.0),
+            ("out_of_view_seconds", 0.0, 3600.0),
+            ("behind", 0.0, 1e4),
+            ("max_sigma", 0.01, 1e3),
+        ):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {v!r}")
+        if isinstance(self.confirm_hits, bool) or not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
+            raise ValueError(f"confirm_hits must be an integer >= 1, got {self.confirm_hits!r}")
+
+
+@dataclass(frozen=True)
+class TrackState:
+    """A track's estimate at ``time``: ``mean`` (x, y, v_x, v_y), ``covariance`` (4 x 4)."""
+
+    track_id: int
+    time: float
+    mean: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    confirmed: bool
+    last_seen: float
+
+    @property
+    def position(self) -> NDArray[np.float64]:
+        return self.mean[:2]
+
+    @property
+    def velocity(self) -> NDArray[np.float64]:
+        return self.mean[2:]
+
+    @property
+    def position_covariance(self) -> NDArray[np.float64]:
+        return self.covariance[:2, :2]
+
+
+@dataclass
+class WorldTrack:
+    """One person followed on the ground: the IMM's per-model means (2, 4), covariances (2, 4, 4)
+    and model probabilities (standing, walking) at ``time``; :attr:`mean` and :attr:`covariance`
+    are their moment-matched combination."""
+
+    track_id: int
+    time: float
+    means: NDArray[np.float64]
+    covariances: NDArray[np.float64]
+    probabilities: NDArray[np.float64]
+    hits: int = 1
+    last_seen: float = 0.0
+    box: NDArray[np.float64] | None = None
+    confirmed: bool = False
+    history: list[tuple[float, NDArray[np.float64]]] = field(default_factory=list, repr=False)
+
+    @property
+    def mean(self) -> NDArray[np.float64]:
+        return _combine(self.means, self.covariances, self.probabilities)[0]
+
+    @property
+    def covariance(self) -> NDArray[np.float64]:
+        return _combine(self.means, self.covariances, self.probabilities)[1]
+
+    @property
+    def standing(self) -> float:
+        """Probability that the person stands (the IMM's standing model)."""
+        return float(self.probabilities[0])
+
+
+def _combine(means, covs, probs) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    mean = probs @ means
+    d = means - mean
+    cov = np.einsum("m,mij->ij", probs, covs) + np.einsum("m,mi,mj->ij", probs, d, d)
+    return mean, 0.5 * (cov + cov.T)
+
+
+def _models(dt: float, cfg: WorldTrackerConfig) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """(F, Q) of the standing and the walking model over ``dt`` seconds."""
+    f_walk = np.eye(4)
+    f_walk[0, 2] = f_walk[1, 3] = dt
+    a, b, c = dt**3 / 3.0, dt**2 / 2.0, dt
+    q_walk = cfg.accel_psd * np.array([[a, 0, b, 0], [0, a, 0, b], [b, 0, c, 0], [0, b, 0, c]])
+    f_stand = np.diag([1.0, 1.0, 0.0, 0.0])
+    q_stand = np.diag([cfg.standing_psd * dt] * 2 + [1e-6] * 2)
+    return [(f_stand, q_stand), (f_walk, q_walk)]
+
+
+def _mix(t: WorldTrack, dt: float, cfg: WorldTrackerConfig):
+    """The IMM's interaction and prediction over ``dt``: per-model predicted means, covariances
+    and the predicted model probabilities."""
+    p = 1.0 - math.exp(-cfg.switch_rate * max(dt, 0.0))
+    pi = np.array([[1.0 - p, p], [p, 1.0 - p]])  # pi[i, j]: from model i to j
+    c = t.probabilities @ pi
+    means, covs = np.empty_like(t.means), np.empty_like(t.covariances)
+    for j, (f, q) in enumerate(_models(dt, cfg)):
+        w = pi[:, j] * t.probabilities / max(c[j], 1e-300)
+        m0, p0 = _combine(t.means, t.covariances, w)
+        means[j] = f @ m0
+        covs[j] = f @ p0 @ f.T + q
+    return means, covs, c
+
+
+_H = np.hstack([np.eye(2), np.zeros((2, 2))])
+
+
+class WorldTracker:
+    """Follows the people of successive frames on the ground (call :meth:`update` once per frame,
+    in time order; :meth:`predict` at any later time)."""
+
+    def __init__(self, config: WorldTrackerConfig | None = None) -> None:
+        self.config = config or WorldTrackerConfig()
+        self.tracks: list[WorldTrack] = []
+        self.time = -math.inf
+        self._next_id = 0
+
+    def _predict_track(self, t: WorldTrack, time: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Combined mean and covariance of ``t`` predicted to ``time`` (the track unchanged)."""
+        if time <= t.time:
+            return t.mean.copy(), t.covariance.copy()
+        means, covs, probs = _mix(t, time - t.time, self.config)
+        return _combine(means, covs, probs)
+
+    def update(
+        self,
+        time: float,
+        estimates: list[GroundEstimate | None],
+        boxes: list[ArrayLike] | None = None,
+        camera: CameraPose | None = None,
+        to_world: NDArray[np.float64] | None = None,
+    ) -> list[int | None]:
+        """Fold in one frame taken at ``time`` (s): the ground estimates of its people (None where
+        a person could not be placed), their image boxes and the ``camera`` that took it (None:
+        every track counts as in view; ``to_world``: the orthogonal 2x2 map from the camera's ground
+        frame to the tracks', if they differ). Returns each person's track ID (None for a person
+        without estimate). Tracks are predicted to ``time`` first; deletions follow."""
+        if not math.isfinite(time) or time < self.time:
+            raise ValueError(f"time must be finite and not go back (last {self.time}), got {time!r}")
+        cfg = self.config
+        self.time = float(time)
+        for t in self.tracks:
+            if time > t.time:
+                t.means, t.covariances, t.probabilities = _mix(t, time - t.time, cfg)
+                t.time = float(time)
+        idx = [i for i, e in enumerate(estimates) if e is not None]
+        ids: list[int | None] = [None] * len(estimates)
+        n_t, n_d = len(self.tracks), len(idx)
+        taken_t: set[int] = set()
+        if n_t and n_d:
+            from scipy.optimize import linear_sum_assignment
+
+            cost = np.full((n_t, n_d), np.inf)
+            for a, t in enumerate(self.tracks):
+                s_pos = t.covariance[:2, :2]
+                recent = t.box is not None and time - t.last_seen <= cfg.overlap_seconds
+                for b, i in enumerate(idx):
+                    e = estimates[i]
+                    assert e is not None
+                    d = e.position - t.mean[:2]
+                    m2 = float(d @ np.linalg.solve(s_pos + e.covariance, d))
+                    if m2 > cfg.gate:
+                        continue
+                    bonus = 0.0
+                    if recent and boxes is not None and boxes[i] is not None:
+                        bonus = cfg.overlap_bonus * box_iou(t.box, np.asarray(boxes[i], dtype=float))
+                    cost[a, b] = m2 - bonus
+            finite = np.where(np.isfinite(cost), cost, 1e9)
+            rows, cols = linear_sum_assignment(finite)
+            for a, b in zip(rows, cols, strict=True):
+                if not np.isfinite(cost[a, b]):
+                    continue
+                i = idx[b]
+                e = estimates[i]
+                assert e is not None
+                t = self.tracks[a]
+                self._correct(t, e)
+                t.hits += 1
+                t.last_seen = float(time)
+                t.box = None if boxes is None or boxes[i] is None else np.asarray(boxes[i], dtype=float)
+                t.confirmed = t.confirmed or t.hits >= cfg.confirm_hits
+                ids[i] = t.track_id
+                taken_t.add(a)
+        missed = [t for a, t in enumerate(self.tracks) if a not in taken_t]
+        for i in idx:
+            if ids[i] is None:
+                e = estimates[i]
+                assert e is not None
+                ids[i] = self._birth(e, time, None if boxes is None else boxes[i])
+        # a tentative track missed once is dropped; a confirmed one unseen too long where it should
+        # have been seen (or out of view), passed, or too uncertain
+        keep = []
+        for t in self.tracks:
+            unseen = time - t.last_seen
+            sigma = math.sqrt(max(np.linalg.eigvalsh(t.covariance[:2, :2])[-1], 0.0))
+            if t in missed and not t.confirmed:
+                continue
+            if sigma > cfg.max_sigma:
+                continue
+            if unseen > 0.0 and camera is not None:
+                xy = t.mean[:2] if to_world is None else np.asarray(to_world).T @ t.mean[:2]
+                point = np.array([[xy[0], xy[1], camera.position[2] - 0.8]])
+                depth = float(camera.to_camera(point)[0, 2])
+                if depth < -cfg.behind:
+                    continue
+                visible = bool(camera.in_view(point)[0]) and depth > 1.0
+                if unseen > (cfg.keep_seconds if visible else cfg.out_of_view_seconds):
+                    continue
+            elif unseen > cfg.keep_seconds:
+                continue
+            keep.append(t)
+        self.tracks = keep
+        for t in self.tracks:
+            if t.last_seen == time:
+                t.history.append((float(time), t.mean.copy()))
+        return ids
+
+    def _correct(self, t: WorldTrack, e: GroundEstimate) -> None:
+        """Kalman update of each model (Joseph form) and of the model probabilities."""
+        like = np.empty(2)
+        for j in range(2):
+            p = t.covariances[j]
+            s = _H @ p @ _H.T + e.covariance
+            s_inv = np.linalg.inv(s)
+            r = e.position - _H @ t.means[j]
+            k = p @ _H.T @ s_inv
+            t.means[j] = t.means[j] + k @ r
+            i_kh = np.eye(4) - k @ _H
+            pj = i_kh @ p @ i_kh.T + k @ e.covariance @ k.T
+            t.covariances[j] = 0.5 * (pj + pj.T)
+            like[j] = math.exp(-0.5 * float(r @ s_inv @ r)) / (2.0 * math.pi * math.sqrt(max(np.linalg.det(s), 1e-300)))
+        post = t.probabilities * like
+        total = float(post.sum())
+        if total > 0 and math.isfinite(total):
+            t.probabilities = np.clip(post / total, 1e-6, 1.0)
+            t.probabilities /= t.probabilities.sum()
+
+    def _birth(self, e: GroundEstimate, time: float, box: ArrayLike | None) -> int:
+        cfg = self.config
+        walk = np.zeros((4, 4))
+        walk[:2, :2] = e.covariance
+        walk[2:, 2:] = cfg.initial_speed_sigma**2 * np.eye(2)
+        stand = walk.copy()
+        stand[2:, 2:] = 1e-6 * np.eye(2)
+        mean = np.array([*e.position, 0.0, 0.0])
+        t = WorldTrack(
+            track_id=self._next_id,
+            time=float(time),
+            means=np.stack([mean, mean]),
+            covariances=np.stack([stand, walk]),
+            probabilities=np.array([cfg.initial_standing, 1.0 - cfg.initial_standing]),
+            last_seen=float(time),
+            box=None if box is None else np.asarray(box, dtype=float),
+            confirmed=cfg.confirm_hits <= 1,
+        )
+        t.history.append((float(time), t.mean.copy()))
+        self._next_id += 1
+        self.tracks.append(t)
+        return t.track_id
+
+    def predict(self, time: float) -> list[TrackState]:
+        """Every live track's state predicted to ``time`` (s; not before the last frame), oldest
+        track first. Nothing changes in the tracker."""
+        if not math.isfinite(time) or time < self.time - 1e-9:
+            raise ValueError(f"time must be finite and not before the last frame ({self.time}), got {time!r}")
+        out = []
+        for t in self.tracks:
+            mean, cov = self._predict_track(t, time)
+            out.append(TrackState(t.track_id, float(time), mean, cov, t.confirmed, t.last_seen))
+        return out

@@ -1,0 +1,252 @@
+"""Pedestrians perceived, not given (issue #18): one camera model, ground-plane localisation,
+the world tracker, the uncertainty margin and the drive on perceived states."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trustnav.control import KinematicBicycle, LaneTrackingCost, MpcConfig, MpcController
+from trustnav.control.barrier import uncertainty_margins
+from trustnav.geometry import CameraSpec
+from trustnav.perception.localisation import GroundEstimate, GroundLocaliser, LocaliserConfig
+from trustnav.perception.types import Person
+from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
+from trustnav.sim.driving.episode import DriveSimulation, run_drive
+from trustnav.sim.driving.sensing import KeypointSensor
+from trustnav.sim.driving.world import load_drive_scenario, pedestrian_bodies, street_of
+
+# ------------------------------------------------------------------------------------------ geometry
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    pitch=st.floats(-10, 10),
+    roll=st.floats(-5, 5),
+    yaw=st.floats(-math.pi, math.pi),
+    ahead=st.floats(2, 60),
+    side=st.floats(-10, 10),
+    height=st.floats(-1.5, 1.0),
+)
+def test_project_then_back_project_returns_the_point(pitch, roll, yaw, ahead, side, height):
+    cam = CameraSpec(pitch_deg=pitch, roll_deg=roll).pose([3.0, -7.0], yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
+    p = np.array([[3.0 + ahead * c - side * s, -7.0 + ahead * s + side * c, height]])
+    uv, depth = cam.project(p)
+    assert depth[0] > 0
+    np.testing.assert_allclose(cam.back_project(uv, depth), p, atol=1e-9)
+    if height < cam.position[2] - 0.05 and np.all(np.isfinite(uv)):
+        np.testing.assert_allclose(cam.ground_point(uv, height), p, atol=1e-6 * max(1.0, ahead))
+    ray = cam.rays(uv)[0]
+    assert ray @ (p[0] - cam.position) / np.linalg.norm(p[0] - cam.position) == pytest.approx(1.0)
+
+
+def test_rays_above_the_horizon_meet_no_ground_and_k_matrix_round_trips():
+    spec = CameraSpec(width=640, height=480, fov_deg=60.0, pitch_deg=0.0)
+    cam = spec.pose([0.0, 0.0], 0.0)
+    assert np.all(np.isnan(cam.ground_point([[320.0, 100.0]], 0.0)))  # above the horizon
+    assert np.all(np.isfinite(cam.ground_point([[320.0, 400.0]], 0.0)))
+    k = spec.matrix
+    again = CameraSpec.from_matrix(k, 640, 480)
+    assert again.focal_px == pytest.approx(spec.focal_px) and again.principal == (320.0, 240.0)
+    off = CameraSpec.from_matrix([[500.0, 0, 300.0], [0, 500.0, 250.0], [0, 0, 1]], 640, 480)
+    uv, _ = off.pose([0.0, 0.0], 0.0).project([[10.0, 0.0, off.up]])
+    np.testing.assert_allclose(uv[0], [300.0, 250.0])  # the optical axis meets the principal point
+    with pytest.raises(ValueError, match="square pixels"):
+        CameraSpec.from_matrix([[500.0, 0, 300.0], [0, 400.0, 250.0], [0, 0, 1]], 640, 480)
+    with pytest.raises(ValueError, match="roll_deg"):
+        CameraSpec(roll_deg=60.0)
+
+
+# ------------------------------------------------------------------------------------- localisation
+
+
+def _person_at(sc, camera, index, seed=0, **sensing):
+    from dataclasses import replace
+
+    spec = replace(sc.sensing, **sensing)
+    sensor = KeypointSensor(spec, np.random.default_rng(seed), eye_model=object())
+    bodies = pedestrian_bodies(sc, 0.0, camera.position)
+    return sensor.person(camera, bodies[index][0])
+
+
+def test_localisation_places_people_with_an_honest_uncertainty_that_grows_with_range():
+    sc = load_drive_scenario("case-1")
+    street = street_of(sc)
+    loc = GroundLocaliser(LocaliserConfig(pitch_sigma_deg=0.03))
+    sigma, err, inside = {}, {}, []
+    for y_ego in (111.0, 126.0):  # the pedestrians ~8 m and ~23 m ahead of the camera
+        cam = sc.camera.pose([33.5, y_ego], -math.pi / 2)
+        for seed in range(15):
+            for j in (0, 1):
+                est = loc.locate(_person_at(sc, cam, j, seed), cam, street.ground_height)
+                assert isinstance(est, GroundEstimate)
+                e = est.position - np.array(sc.pedestrians[j].position)
+                sigma.setdefault(y_ego, []).append(math.sqrt(np.linalg.eigvalsh(est.covariance)[-1]))
+                err.setdefault(y_ego, []).append(float(np.hypot(*e)))
+                inside.append(est.contains(sc.pedestrians[j].position))
+    assert np.median(err[111.0]) < 0.25 and np.median(err[126.0]) < 0.6
+    assert np.median(sigma[126.0]) > 1.5 * np.median(sigma[111.0])  # range error grows with range
+    assert 0.8 <= np.mean(inside) <= 1.0
+
+
+def test_localisation_on_a_kerb_uses_the_map_and_refuses_what_it_cannot_place():
+    sc = load_drive_scenario("case-1")
+    cam = sc.camera.pose([33.5, 115.0], -math.pi / 2)
+    person = _person_at(sc, cam, 1, detector_bias=True)
+    loc = GroundLocaliser(LocaliserConfig(pitch_sigma_deg=0.03))
+    on_kerb = loc.locate(person, cam, street_of(sc).ground_height)
+    flat = loc.locate(person, cam)  # the 0.13 m kerb ignored: the person seems farther
+    truth = np.array(sc.pedestrians[1].position)
+    assert np.hypot(*(on_kerb.position - truth)) < np.hypot(*(flat.position - truth))
+    few = Person(person.bbox, person.keypoints, np.where(np.arange(17) < 5, person.confidences, 0.0), 0.9)
+    assert loc.locate(few, cam) is None  # a face alone cannot be placed on the ground
+    with pytest.raises(ValueError, match="pitch_sigma_deg"):
+        LocaliserConfig(pitch_sigma_deg=-1.0)
+
+
+def test_a_squashed_detection_is_believed_less():
+    sc = load_drive_scenario("case-1")
+    cam = sc.camera.pose([33.5, 120.0], -math.pi / 2)
+    person = _person_at(sc, cam, 0, detector_bias=False, pixel_noise=0.0, dropout=0.0)
+    loc = GroundLocaliser()
+    good = loc.locate(person, cam)
+    kp = person.keypoints.copy()
+    kp[11:, 1] -= 0.15 * (kp[15, 1] - kp[0, 1])  # hips, knees and ankles placed much too high
+    bad = loc.locate(Person(person.bbox, kp, person.confidences, 0.9), cam)
+    assert bad.fit > 3.0 > good.fit
+    assert np.linalg.det(bad.covariance) > 4 * np.linalg.det(good.covariance)
+
+
+# ------------------------------------------------------------------------------------------ tracker
+
+
+def _estimate(xy, sigma=0.2):
+    return GroundEstimate(np.asarray(xy, dtype=float), sigma**2 * np.eye(2), 10.0, 1.7, 0.0, 7)
+
+
+def test_tracker_keeps_identity_through_one_second_gaps_and_a_crossing():
+    rng = np.random.default_rng(0)
+    tr = WorldTracker()
+    ids = []
+    for k in range(9):  # two walkers cross paths at t = 4 s, frames 1 s apart, 0.2 m noise
+        t = float(k)
+        a = np.array([-6.0 + 1.5 * t, 0.0])
+        b = np.array([6.0 - 1.5 * t, 0.6])
+        got = tr.update(t, [_estimate(a + rng.normal(0, 0.15, 2)), _estimate(b + rng.normal(0, 0.15, 2))])
+        ids.append(got)
+    assert all(i == ids[0] for i in ids) and ids[0][0] != ids[0][1]
+    (sa, sb) = sorted(tr.predict(8.0), key=lambda s: s.track_id)
+    np.testing.assert_allclose(sa.velocity, [1.5, 0.0], atol=0.3)
+    np.testing.assert_allclose(sb.velocity, [-1.5, 0.0], atol=0.3)
+
+
+def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropped():
+    sc = load_drive_scenario("case-1")
+    tr = WorldTracker(WorldTrackerConfig(out_of_view_seconds=6.0))
+    cam0 = sc.camera.pose([33.5, 129.0], -math.pi / 2)
+    for k in range(4):
+        (tid,) = tr.update(float(k), [_estimate([37.5, 101.0], 0.3)], camera=cam0)
+    beside = sc.camera.pose([33.5, 103.0], -math.pi / 2)  # the person is beside the car, out of view
+    spreads = []
+    for t in (5.0, 6.0, 8.0):
+        assert tr.update(t, [], camera=beside) == []
+        (s,) = tr.predict(t)
+        assert s.track_id == tid
+        spreads.append(np.trace(s.position_covariance))
+    assert spreads[0] < spreads[1] < spreads[2]
+    assert np.hypot(*(s.position - [37.5, 101.0])) < 0.3  # predicted standing, not wandering
+    tr.update(10.0, [], camera=beside)
+    assert tr.predict(10.0) == []  # out of view for more than 6 s
+    # a tentative track (one hit) is dropped at its first miss where it should have been seen
+    tr2 = WorldTracker()
+    tr2.update(0.0, [_estimate([35.0, 110.0])], camera=cam0)
+    tr2.update(1.0, [], camera=cam0)
+    assert tr2.predict(1.0) == []
+    with pytest.raises(ValueError, match="time"):
+        tr2.update(0.5, [])
+
+
+# ------------------------------------------------------------------------------------------- margin
+
+
+def test_margin_grows_with_uncertainty_along_the_line_of_approach_only():
+    ego = np.array([0.0, 0.0])
+    ped = np.array([[10.0, 0.0]])
+    small = uncertainty_margins(ego, ped, np.diag([0.01, 0.01])[None], 0.6, 0.95)
+    along = uncertainty_margins(ego, ped, np.diag([0.25, 0.01])[None], 0.6, 0.95)
+    across = uncertainty_margins(ego, ped, np.diag([0.01, 0.25])[None], 0.6, 0.95)
+    assert along[0] > 4 * small[0] and across[0] == pytest.approx(small[0])
+    assert along[0] == pytest.approx(1.6449 * 0.5, rel=1e-3)  # z_0.95 sigma along the approach
+    full = np.zeros((1, 4, 4))
+    full[0, :2, :2] = np.diag([0.01, 0.01])
+    full[0, 2:, 2:] = np.diag([0.04, 0.04])  # velocity uncertainty is predicted over the lead time
+    assert uncertainty_margins(ego, ped, full, 1.0, 0.95)[0] > uncertainty_margins(ego, ped, full, 0.0, 0.95)[0]
+    assert uncertainty_margins(ego, ped, full, 0.6, 0.99)[0] > uncertainty_margins(ego, ped, full, 0.6, 0.9)[0]
+    with pytest.raises(ValueError, match="covariances"):
+        uncertainty_margins(ego, ped, np.zeros((2, 2, 2)), 0.6, 0.95)
+    with pytest.raises(ValueError, match="confidence"):
+        MpcConfig(confidence=1.0)
+
+
+def test_controller_keeps_farther_from_an_uncertain_pedestrian_and_zero_covariance_changes_nothing():
+    cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, latency=0.0)
+
+    def plan(cov):
+        c = MpcController(KinematicBicycle(), LaneTrackingCost(start=(0.0, 0.0), goal=(60.0, 0.0)), cfg)
+        return c.step(np.array([0.0, 0.0, 0.0, 6.0]), [[10.0, 2.0]], [[0.0, 0.0]], [1.0], covariances=cov)
+
+    base = plan(None)
+    zero = plan(np.zeros((1, 4, 4)))
+    np.testing.assert_array_equal(base.inputs, zero.inputs)
+    wide = plan(np.diag([0.5, 0.5, 0.0, 0.0])[None])
+    assert not (base.slack_used or wide.slack_used)
+    d_base = np.linalg.norm(base.predicted_states[-1, :2] - [10.0, 2.0])
+    d_wide = np.linalg.norm(wide.predicted_states[-1, :2] - [10.0, 2.0])
+    assert d_wide > d_base + 0.1 and abs(wide.control[0]) > abs(base.control[0])  # steers away harder
+
+
+# -------------------------------------------------------------------------------------------- drive
+
+
+@pytest.fixture(scope="module")
+def case1_perceived():
+    return run_drive(load_drive_scenario("case-1"), sensing="keypoints", seed=2, state="perceived")
+
+
+def test_case1_on_perceived_states_keeps_the_claims_and_reports_localisation(case1_perceived):
+    r = case1_perceived
+    m = r.metrics()
+    assert m["state"] == "perceived" and m["id_switches"] == 0
+    att, dis = m["pedestrians"]
+    assert dis["min_distance"] > att["min_distance"] + 1.0 and min(att["min_distance"], dis["min_distance"]) >= 2.5
+    assert m["margin_violations"] == 0 and m["reached_goal"]
+    assert att["final_trust"] > dis["final_trust"] + 0.3
+    for p in (att, dis):
+        assert p["localisation_error_median"] < 0.75 and 0.0 < p["interval_coverage"] <= 1.0
+        assert p["velocity_error_median"] < 0.3
+    # the controller saw only tracks: every frame's tracks came from the camera, with covariances
+    assert all(len(f.tracks) <= 2 for f in r.frames)
+    seen = [v for f in r.frames for v in f.views if v.estimate is not None]
+    assert seen and all(v.estimate_cov.shape == (4, 4) for v in seen)
+
+
+def test_perceived_controller_inputs_come_from_tracks_not_the_world():
+    sc = load_drive_scenario("case-1")
+    sim = DriveSimulation(sc, seed=0, state="perceived")
+    obs = sim.observe()  # the frame at t = 0
+    truth = sim.pedestrians()[0]
+    assert obs.covariances is not None and obs.covariances.shape == (2, 4, 4)
+    err = np.linalg.norm(obs.positions[:, None] - truth[None], axis=2).min(axis=1)
+    assert np.all(err > 1e-6) and np.all(err < 1.5)  # estimated, not copied
+    blind = DriveSimulation(sc, seed=0, state="perceived", max_frames=0)
+    assert len(blind.observe().positions) == 0  # nothing seen: nothing known
+    true = DriveSimulation(sc, seed=0, state="true").observe()
+    np.testing.assert_array_equal(true.positions, truth)
+    assert true.covariances is None
+    with pytest.raises(ValueError, match="state"):
+        DriveSimulation(sc, state="oracle")
