@@ -25,7 +25,7 @@ ALLOWED: dict[str, set[str]] = {
     # the thin entry points may reach any layer below them (downward only; `estimate` wires
     # perception and trust directly)
     "cli": {"sim", "campaigns", "carla_bridge", "viz", "perception", "control", "trust"},
-    "campaigns": {"sim", "control", "perception", "trust"},
+    "campaigns": {"sim", "control", "perception", "trust", "viz"},  # viz: the campaign figures' style
     "carla_bridge": {"sim", "perception", "control", "trust"},
     "sim": {"perception", "control", "trust"},
     "perception": {"trust"},
@@ -132,9 +132,10 @@ def test_imports_follow_the_one_direction():
     assert not bad, "imports against the layering of docs/architecture.md:\n" + "\n".join(bad)
 
 
-def test_viz_is_imported_by_nothing_but_the_cli():
-    users = sorted({f"{file}:{line} ({a})" for a, b, file, line in _edges() if b == "viz" and a != "cli"})
-    assert not users, "viz imported outside the cli:\n" + "\n".join(users)
+def test_viz_is_imported_by_nothing_but_the_cli_and_the_campaign_figures():
+    users = sorted({f"{file}:{line} ({a})" for a, b, file, line in _edges()
+                    if b == "viz" and a != "cli" and not file.endswith("campaigns/plots.py")})  # fmt: skip
+    assert not users, "viz imported outside the cli and the campaign figures:\n" + "\n".join(users)
 
 
 def test_perception_and_control_never_import_each_other():

@@ -250,3 +250,32 @@ def test_perceived_controller_inputs_come_from_tracks_not_the_world():
     assert true.covariances is None
     with pytest.raises(ValueError, match="state"):
         DriveSimulation(sc, state="oracle")
+
+
+# ------------------------------------------------------------------------------- recorded video
+
+
+def test_estimate_places_people_on_the_ground_only_with_the_camera_height(tmp_path, sequences, capsys):
+    import csv
+    import shutil
+
+    from trustnav.cli import main
+
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for f in sorted((sequences / "walk_a").iterdir())[:3]:
+        shutil.copy(f, clip / f.name)
+    assert main(["estimate", str(clip), "--out", str(tmp_path / "a"), "--no-images", "--camera-height", "1.5",
+                 "--fov", "60"]) == 0  # fmt: skip
+    rows = list(csv.DictReader(open(tmp_path / "a" / "tracks.csv")))
+    assert rows and all(float(r["distance_m"]) > 2.0 and float(r["ahead_m"]) > 0 for r in rows if r["distance_m"])
+    assert sum(bool(r["distance_m"]) for r in rows) >= 0.8 * len(rows)
+    assert all(float(r["sd_ahead_m"]) >= float(r["sd_left_m"]) for r in rows if r["distance_m"])  # range is harder
+    assert "placed on the ground" in capsys.readouterr().out
+    assert main(["estimate", str(clip), "--out", str(tmp_path / "b"), "--no-images"]) == 0
+    header = open(tmp_path / "b" / "tracks.csv").readline()
+    assert "distance_m" not in header and "--camera-height" in capsys.readouterr().out
+    assert main(["estimate", str(clip), "--out", str(tmp_path / "c"), "--fov", "60"]) == 2
+    assert "--camera-height" in capsys.readouterr().err and not (tmp_path / "c").exists()
+    assert main(["estimate", str(clip), "--out", str(tmp_path / "d"), "--camera-height", "100"]) == 2
+    assert "--camera-height must be in [0.2, 20] m, got 100" in capsys.readouterr().err

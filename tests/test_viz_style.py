@@ -112,7 +112,7 @@ def _legends_inside(fig) -> int:  # type: ignore[no-untyped-def]
 def test_copies_of_the_style_equal_the_style():
     assert topview.PERSON_COLOURS == style.PERSON_COLOURS
     assert topview.TRUST_BANDS == style.TRUST_BANDS
-    assert campaign_plots.RC == style.RC and campaign_plots.DPI == style.DPI
+    assert campaign_plots.RC is style.RC and campaign_plots.DPI == style.DPI  # one style, not a copy
     assert [topview.trust_bgr(t) for t in (0.9, 0.5, 0.1)] == [style.trust_bgr(t) for t in (0.9, 0.5, 0.1)]
 
 

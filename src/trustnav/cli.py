@@ -48,6 +48,9 @@ BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
     "timeout": (float, 0, 600, True, " s"),
     "workers": (int, 1, 256, False, ""),
     "batch": (int, 1, 10000, False, ""),
+    "camera_height": (float, 0.2, 20, False, " m"),
+    "fov": (float, 10, 170, False, " degrees"),
+    "pitch": (float, -45, 45, False, " degrees"),
 }
 
 
@@ -260,13 +263,13 @@ class _RecordSink:
     FIELDS = ("frame", "track_id", "bbox", "eye_contact", "phone", "fluctuation", "smartphone_trait", "eye_trait",
               "pose_trait", "score", "trust", "sequence")  # fmt: skip
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, extra: tuple[str, ...] = ()) -> None:
         import csv
 
         self.out = out
         self.rows: list[dict] = []
         self._fh = open(out / "tracks.csv", "w", newline="")  # closed in close()
-        self._csv = csv.DictWriter(self._fh, fieldnames=self.FIELDS)
+        self._csv = csv.DictWriter(self._fh, fieldnames=(*self.FIELDS, *extra))
         self._csv.writeheader()
         self._fh.flush()
 
@@ -363,7 +366,14 @@ def _estimate(args: argparse.Namespace) -> int:
     from trustnav.viz.annotate import annotate
 
     # everything that can be refused is refused before the output folder is touched
-    check_bounds(args, "fps", "scan_frames")
+    check_bounds(args, "fps", "scan_frames", "camera_height", "fov", "pitch")
+    ground = None
+    if args.camera_height is not None:
+        from trustnav.perception.localisation import FixedCameraGround
+
+        ground = FixedCameraGround(args.camera_height, 70.0 if args.fov is None else args.fov, args.pitch or 0.0)
+    elif args.fov is not None or args.pitch is not None:
+        raise ValueError("--fov and --pitch place people on the ground only with --camera-height")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
     folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
@@ -372,7 +382,7 @@ def _estimate(args: argparse.Namespace) -> int:
         out = folder.path
         kwargs = {"scan_frames": args.scan_frames} if args.backend == "mediapipe" else {}
         backend = make_backend(args.backend, video=True, **kwargs)
-        sink = _RecordSink(out)
+        sink = _RecordSink(out, () if ground is None else ground.FIELDS)
         images = _Annotations(out, sequences, args.mp4)
         counts = {"read": 0, "skipped": 0}
         interrupted = False
@@ -399,10 +409,17 @@ def _estimate(args: argparse.Namespace) -> int:
                     if res.error is not None:
                         continue
                     counts["read"] += 1
+                    labels = [phone_label(tp.phone) for tp in res.people]
+                    if ground is not None:  # where each person stands, from the camera's height
+                        h, w = res.rgb.shape[:2]
+                        for rec, tp in zip(res.records, res.people, strict=True):
+                            rec.update(ground.fields(tp.person, w, h))
+                        labels = [lab if r["distance_m"] is None else f"{lab} {r['distance_m']:.1f} m"
+                                  for lab, r in zip(labels, res.records, strict=True)]  # fmt: skip
                     sink.add(res.records)
                     if not args.no_images:
                         img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
-                                       [phone_label(tp.phone) for tp in res.people])  # fmt: skip
+                                       labels)  # fmt: skip
                         images.add(res.name, img)
         except KeyboardInterrupt:
             interrupted = True
@@ -444,6 +461,12 @@ def _estimate(args: argparse.Namespace) -> int:
     tracks = len({(r["sequence"], r["track_id"]) for r in rows})
     print(f"estimate: {counts['read']} frames in {len(sequences)} sequence{'s' * (len(sequences) > 1)}, "
           f"{len(rows)} records, {tracks} tracks, {counts['skipped']} frames skipped; wrote {out}")  # fmt: skip
+    if ground is None:
+        print("  no ground positions: give --camera-height (and --fov, --pitch) to place people on the ground")
+    else:
+        placed = sum(r.get("distance_m") is not None for r in rows)
+        print(f"  {placed} of {len(rows)} records placed on the ground (ahead_m, left_m with sd; camera "
+              f"{ground.height:g} m up, {ground.fov_deg:g} deg, pitch {ground.pitch_deg:g} deg)")  # fmt: skip
     return 0
 
 
@@ -775,6 +798,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--trust", choices=["paper", "moving-average"], default="paper",
                    help="paper: PAPER_TRUST, only rises (default); moving-average: MOVING_AVERAGE_TRUST")  # fmt: skip
     e.add_argument("--no-images", action="store_true", help="write only tracks.csv/json")
+    e.add_argument("--camera-height", type=float,
+                   help=f"the camera's height above flat ground, {_range('camera_height')}: places each person on "
+                   "the ground (ahead_m, left_m, their sd, distance_m in the tables; the "
+                   "distance on the frames); without it no positions are written")  # fmt: skip
+    e.add_argument("--fov", type=float, help=f"horizontal field of view, {_range('fov')} (default 70; "
+                   "with --camera-height)")  # fmt: skip
+    e.add_argument("--pitch", type=float, help=f"camera pitch, > 0 looking down, {_range('pitch')} (default 0; "
+                   "with --camera-height)")  # fmt: skip
     e.add_argument("--mp4", action="store_true",
                    help="image inputs too: an annotated MP4 per sequence instead of PNG frames")  # fmt: skip
     e.set_defaults(func=_estimate)

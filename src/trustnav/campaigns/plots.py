@@ -3,9 +3,7 @@ vs every swept numeric parameter (gamma_ini, delta, lambda of `weight`, trust, .
 
 One PNG per sweep and question under ``figures/``; rates carry Wilson 95 % intervals. The figures
 look like every trustnav figure (:mod:`trustnav.viz.style`: fonts, sizes, legends inside the axes,
-integer ticks for integer parameters); campaigns may not import ``trustnav.viz``
-(docs/architecture.md), so the style's values are repeated here and ``tests/test_viz_style.py``
-checks that they are equal.
+integer ticks for integer parameters).
 """
 
 from __future__ import annotations
@@ -20,40 +18,9 @@ import numpy as np
 
 from trustnav.campaigns.spec import CampaignSpec
 from trustnav.campaigns.summary import TRUST_BANDS, wilson
+from trustnav.viz.style import DPI, RC, new_figure
 
 __all__ = ["write_figures"]
-
-# == trustnav.viz.style.DPI / RC (checked by tests/test_viz_style.py)
-DPI = 130
-RC: dict[str, Any] = {
-    "font.family": "DejaVu Sans",
-    "font.size": 9.0,
-    "axes.titlesize": 10.0,
-    "axes.labelsize": 9.0,
-    "xtick.labelsize": 8.0,
-    "ytick.labelsize": 8.0,
-    "legend.fontsize": 8.0,
-    "legend.framealpha": 0.9,
-    "legend.edgecolor": "0.8",
-    "figure.titlesize": 10.0,
-    "axes.grid": True,
-    "grid.alpha": 0.3,
-    "grid.linewidth": 0.6,
-    "lines.linewidth": 1.6,
-    "figure.dpi": DPI,
-    "savefig.dpi": DPI,
-}
-
-
-def _figure(figsize: tuple[float, float], ncols: int = 1) -> tuple[Any, Any]:
-    """A Figure on its own Agg canvas with constrained layout (nothing cut off) and its Axes (no
-    pyplot state, no global backend switch). Call it inside ``matplotlib.rc_context(RC)``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize, dpi=DPI, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig, fig.subplots(1, ncols)
 
 
 def _param_ticks(axis: Any, xs: Sequence[float], kind: str) -> None:
@@ -92,7 +59,7 @@ def _min_distance_vs_trust(name: str, recs: Sequence[Mapping[str, Any]], path: P
         return False
     t, d = np.array(pairs).T
     radius = next((r["safety_radius"] for r in recs if r.get("safety_radius")), None)
-    fig, ax = _figure((6.4, 4.2))
+    fig, ax = new_figure((6.4, 4.2))
     ax.scatter(
         t,
         d,
@@ -135,7 +102,7 @@ def _rates_vs(
     xs = sorted(groups)
     if len(xs) < 2:
         return False
-    fig, (ax, ax2) = _figure((11.5, 3.8), ncols=2)
+    fig, (ax, ax2) = new_figure((11.5, 3.8), ncols=2)
     for key, color, text in (
         ("breach", "tab:red", "margin violation"),
         ("relaxed", "tab:purple", "infeasible (relaxed step)"),

@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from trustnav.geometry.camera import CameraPose
 from trustnav.perception.types import Person
 
-__all__ = ["BODY_POINTS", "GroundEstimate", "GroundLocaliser", "LocaliserConfig", "chi2_90"]
+__all__ = ["BODY_POINTS", "FixedCameraGround", "GroundEstimate", "GroundLocaliser", "LocaliserConfig", "chi2_90"]
 
 #: The body's centre-line points: (name, COCO joints, height above the soles / stature where the
 #: detector reports them (true joint + the detector's median upward bias), spread of that ratio
@@ -280,3 +280,49 @@ class GroundLocaliser:
                 return None, np.zeros(0)
             jac[:, k] = (a - b) / (2 * eps)
         return pred, jac
+
+
+class FixedCameraGround:
+    """People in the frames of a camera at a known height above flat ground (a dash-cam, a
+    recorded video): each one's position ``ahead`` and to the ``left`` of the camera (m) with its
+    covariance, for `trustnav estimate`. ``fov_deg``: horizontal field of view; ``pitch_deg``
+    (> 0 looking down) and its uncertainty ``config.pitch_sigma_deg``."""
+
+    FIELDS = ("ahead_m", "left_m", "sd_ahead_m", "sd_left_m", "distance_m")
+
+    def __init__(
+        self, height: float, fov_deg: float, pitch_deg: float = 0.0, config: LocaliserConfig | None = None
+    ) -> None:
+        from trustnav.geometry.camera import CameraSpec
+
+        CameraSpec(up=height, fov_deg=fov_deg, pitch_deg=pitch_deg, forward=0.0)  # validates, names the input
+        self.height, self.fov_deg, self.pitch_deg = float(height), float(fov_deg), float(pitch_deg)
+        self.localiser = GroundLocaliser(config)
+        self._cameras: dict[tuple[int, int], CameraPose] = {}
+
+    def camera(self, width: int, height: int) -> CameraPose:
+        """The camera of a ``width`` x ``height`` frame, at the origin looking along +x."""
+        key = (int(width), int(height))
+        if key not in self._cameras:
+            from trustnav.geometry.camera import CameraSpec
+
+            spec = CameraSpec(width=key[0], height=key[1], fov_deg=self.fov_deg, forward=0.0, up=self.height,
+                              pitch_deg=self.pitch_deg)  # fmt: skip
+            self._cameras[key] = spec.pose([0.0, 0.0], 0.0)
+        return self._cameras[key]
+
+    def fields(self, person: Person, width: int, height: int) -> dict[str, float | None]:
+        """The record fields of one person (None each when it cannot be placed)."""
+        cam = self.camera(width, height)
+        est = self.localiser.locate(person, cam)
+        if est is None:
+            return dict.fromkeys(self.FIELDS)
+        ahead, left = est.relative_to(cam)
+        cov = est.relative_covariance(cam)
+        return {
+            "ahead_m": round(ahead, 3),
+            "left_m": round(left, 3),
+            "sd_ahead_m": round(math.sqrt(cov[0, 0]), 3),
+            "sd_left_m": round(math.sqrt(cov[1, 1]), 3),
+            "distance_m": round(est.distance, 3),
+        }

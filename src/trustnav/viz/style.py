@@ -11,9 +11,9 @@
   is cut off), :func:`legend` (inside the axes), :func:`integer_ticks` (integer parameters get
   integer ticks), :func:`save`.
 
-``trustnav.sim.driving.topview`` (the video's top view, drawn with OpenCV) and
-``trustnav.campaigns.plots`` may not import ``trustnav.viz`` (docs/architecture.md): they keep a
-copy of the values they need, and ``tests/test_viz_style.py`` checks that the copies equal these.
+``trustnav.campaigns.plots`` draws with this module; ``trustnav.sim.driving.topview`` (the video's
+top view, drawn with OpenCV) may not import ``trustnav.viz`` (docs/architecture.md): it keeps a
+copy of the colours it needs, and ``tests/test_viz_style.py`` checks that the copy equals these.
 """
 
 from __future__ import annotations
