@@ -71,7 +71,9 @@ def _pass_distances(entry: dict) -> tuple[float, float]:
 
 def summarise(name: str, entries: list[dict], gap: float) -> dict:
     """The claims over seeds: distracted wider by more than ``gap`` m, violations, goal, localisation."""
-    wider = sum(d > a + gap for a, d in map(_pass_distances, entries))
+    pairs = list(map(_pass_distances, entries))
+    wider = sum(d > a for a, d in pairs)  # the paper's claim
+    clear = sum(d > a + gap for a, d in pairs)  # and by the margin the tests ask of keypoint sensing
     runs = [m for e in entries for m in e["runs"].values()]
     below = sum(m["margin_violations"] > 0 for m in runs)
     closest = min(min(p["min_distance"] for p in m["pedestrians"]) for m in runs)
@@ -83,6 +85,8 @@ def summarise(name: str, entries: list[dict], gap: float) -> dict:
         "seeds": len(entries),
         "runs": len(runs),
         "distracted_wider": wider,
+        f"distracted_wider_by_{gap:g}_m": clear,
+        "gap_median_m": round(float(np.median([d - a for a, d in pairs])), 3),
         "runs_below_R": below,
         "closest_m": round(closest, 3),
         "reached_goal": goal,

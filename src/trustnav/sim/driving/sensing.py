@@ -237,11 +237,14 @@ class KeypointSensor:
         uv, inside = _visible_joints(camera, skeleton)
         size = box[3] - box[1]
         sigma = s.pixel_noise * size
+        # the detector's errors are shares of the person's projected stature (head top to sole)
+        depth = float(camera.to_camera(skeleton.pelvis[None])[0, 2]) if skeleton.pelvis is not None else 0.0
+        stature_px = camera.focal_px * skeleton.height / depth if depth > NEAR else size
         noise = self.rng.normal(0.0, 1.0, size=(17, 2)) * sigma
         if s.detector_bias:  # the detector's error model (see the module)
-            noise[:, 1] += (DETECTOR_V_BIAS + self.rng.normal(0.0, s.common_noise)) * size
+            noise[:, 1] += (DETECTOR_V_BIAS + self.rng.normal(0.0, s.common_noise)) * stature_px
             wild = self.rng.random((17, 2)) < s.outlier_rate  # the heavy tail: a joint placed badly
-            noise += wild * self.rng.normal(0.0, s.outlier_noise, size=(17, 2)) * size
+            noise += wild * self.rng.normal(0.0, s.outlier_noise, size=(17, 2)) * stature_px
         drop = self.rng.random(17) < s.dropout
         jitter = self.rng.uniform(0.9, 1.0, size=17)
         w, h = camera.spec.width, camera.spec.height
