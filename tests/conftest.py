@@ -30,12 +30,18 @@ Markers: ``slow`` (registered in pyproject.toml) marks tests that take more than
 from __future__ import annotations
 
 import json
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+
+# Ctrl-C behaves as in a terminal whatever launched the tests: a shell's background job inherits
+# SIGINT ignored, and then Python installs no KeyboardInterrupt handler (the signal tests need one)
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"

@@ -186,7 +186,13 @@ def test_sigint_to_a_real_run_keeps_csv_and_json(sequences, looking_weights, out
     out = out_dir
     cmd = [sys.executable, "-m", "trustnav.cli", "estimate", str(sequences / "walk_a"), "--out", str(out),
            "--no-images", "--scan-frames", "4"]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # Ctrl-C reaches it
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
