@@ -114,28 +114,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=20, help="seeds per case (default 20)")
     ap.add_argument("--state", choices=STATES, default="perceived", help="controller's pedestrian states")
     ap.add_argument("--render", action="store_true", help="also Case I in render mode (seed 0)")
+    ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
     ap.add_argument("--json", help="write the summary rows to this file")
     args = ap.parse_args(argv)
     if not 1 <= args.seeds <= 1000:
         ap.error(f"--seeds must be in [1, 1000], got {args.seeds}")
+    if args.rate is not None and not 0 < args.rate <= 60:
+        ap.error(f"--rate must be in (0, 60] frames per second, got {args.rate:g}")
     rows = []
     t0 = time.perf_counter()
     for name, gap in (("case-1", 1.0), ("case-2", 0.5)):
-        rows.append(summarise(name, _case_runs(name, range(args.seeds), args.state), gap))
+        rows.append(summarise(name, _case_runs(name, range(args.seeds), args.state, capture_rate=args.rate), gap))
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
 
         sc = load_drive_scenario("case-1")
         renderer, pipeline = make_render_sensing(sc)
         try:
-            entries = _case_runs("case-1", range(1), args.state, "render", renderer=renderer, pipeline=pipeline)
+            entries = _case_runs("case-1", range(1), args.state, "render", renderer=renderer, pipeline=pipeline,
+                                 capture_rate=args.rate)  # fmt: skip
         finally:
             renderer.close()
             pipeline.backend.close()
         row = summarise("case-1 render", entries, 1.0)
         row["detection_recall"] = entries[0]["runs"]["both"].get("detection_recall")
         rows.append(row)
-    print(f"state = {args.state}, {args.seeds} seeds, {time.perf_counter() - t0:.0f} s")
+    rate = f"{args.rate:g} frames/s" if args.rate else "the scenario's camera rate"
+    print(f"state = {args.state}, {args.seeds} seeds, {rate}, {time.perf_counter() - t0:.0f} s")
     for r in rows:
         print(json.dumps(r))
     if args.json:

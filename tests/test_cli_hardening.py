@@ -141,8 +141,9 @@ def test_two_photos_do_not_share_tracks_or_trust_unless_asked(tmp_path, scripted
     assert scripted.resets == 2  # the backend forgets the people it followed, per sequence
     assert sorted(p.name for p in (tmp_path / "sep" / "frames").iterdir()) == ["street_1.png", "street_2.png"]
     assert "2 sequences" in capsys.readouterr().out
-    # asked for: one sequence, one trust state
-    assert main(["estimate", str(a), str(b), "--out", str(tmp_path / "one"), "--one-sequence"]) == 0
+    # asked for: one sequence, one trust state (frames 1 s apart: pose fluctuation compares poses
+    # a second apart under the default trust law, SECONDS_TRUST)
+    assert main(["estimate", str(a), str(b), "--out", str(tmp_path / "one"), "--one-sequence", "--fps", "1"]) == 0
     one = _rows(tmp_path / "one")
     assert one[1]["fluctuation"] is not None and one[1]["trust"] != one[0]["trust"]
 

@@ -257,3 +257,17 @@ def test_render_mode_case1_detects_both_tells_them_apart_and_bends_away():
     assert max(phone[1]) > 0.5 > max(phone[0])
     assert dis["min_distance"] > att["min_distance"]
     assert m["margin_violations"] == 0 and m["reached_goal"]
+
+
+def test_case1_keypoints_at_ten_frames_per_second_keeps_the_claim_trust_in_seconds():
+    """Trust grows with time, not with frames (SECONDS_TRUST): at 10 frames/s the distracted
+    pedestrian is still given more room, and trusts after the same seconds match 1 frame/s."""
+    sc = load_drive_scenario("case-1")
+    fast = run_drive(sc, sensing="keypoints", seed=4, capture_rate=10.0)
+    slow = run_drive(sc, sensing="keypoints", seed=4, capture_rate=1.0)
+    att, dis = fast.metrics()["pedestrians"]
+    assert dis["min_distance"] > att["min_distance"] + 1.0 and fast.metrics()["margin_violations"] == 0
+    t = 3.0  # both pedestrians still in view
+    i_fast, i_slow = np.searchsorted(fast.times, t), np.searchsorted(slow.times, t)
+    np.testing.assert_allclose(fast.trusts[i_fast], slow.trusts[i_slow], atol=0.12)
+    assert fast.trusts[i_fast, 0] > fast.trusts[i_fast, 1] + 0.3

@@ -240,3 +240,57 @@ def test_estimator_handles_missing_traits_and_forgets_lost_tracks():
     est.observe(Observation(3, 1.0))
     with pytest.raises(ValueError, match="older than its last one"):
         est.observe(Observation(3, 0.5))
+
+
+# ------------------------------------------------------------------ trust in seconds (issue #19)
+
+
+def _watch(params, fps: float, seconds: float, c_sm: float, c_eye: float, seed: int = 0) -> dict[float, float]:
+    """Trust of one person showing the same behaviour for ``seconds`` at ``fps``: {time: trust}."""
+    from trustnav.trust import Observation, TrustEstimator
+
+    rng = np.random.default_rng(seed)
+    base = np.array([[50.0 + 20.0 * np.sin(i), 10.0 + 5.0 * i] for i in range(17)])
+    est = TrustEstimator(params)
+    out = {}
+    for k in range(int(round(seconds * fps)) + 1):
+        t = k / fps
+        kp = base + rng.normal(0.0, 0.4, base.shape)  # a person standing: keypoint jitter only
+        est.observe(Observation(track_id=0, time=t, c_smartphone=c_sm, c_eye=c_eye, keypoints=kp,
+                                bbox=np.array([0.0, 0.0, 100.0, 100.0])))  # fmt: skip
+        out[round(t, 6)] = float(est.trust(0))
+    return out
+
+
+@pytest.mark.parametrize("behaviour", [(0.05, 0.7), (0.9, 0.05), (0.5, 0.3)])
+def test_seconds_law_gives_the_same_trust_after_the_same_seconds_at_any_frame_rate(behaviour):
+    from trustnav.trust import PAPER_TRUST, SECONDS_TRUST
+
+    c_sm, c_eye = behaviour
+    for t in (2.0, 4.0, 10.0):
+        at = [_watch(SECONDS_TRUST, fps, 10.0, c_sm, c_eye)[t] for fps in (1, 5, 10, 30)]
+        assert max(at) - min(at) <= 0.02, (t, at)
+    paper = [_watch(PAPER_TRUST, fps, 10.0, c_sm, c_eye)[4.0] for fps in (1, 10)]
+    if c_sm < 0.9:  # the per-frame law: ten times the frames, ten times the steps
+        assert paper[1] - paper[0] > 0.1
+
+
+def test_seconds_law_keeps_a_distracted_person_low_however_long_watched():
+    from trustnav.trust import PAPER_TRUST, SECONDS_TRUST
+
+    distracted = _watch(SECONDS_TRUST, 10, 120.0, 0.9, 0.05)
+    attentive = _watch(SECONDS_TRUST, 10, 120.0, 0.05, 0.8)
+    assert distracted[120.0] < 0.25 and attentive[120.0] > 0.75
+    assert abs(distracted[120.0] - distracted[30.0]) < 0.02  # settled, not creeping up
+    assert _watch(PAPER_TRUST, 1, 120.0, 0.9, 0.05)[120.0] > 0.5  # the paper's law only rises
+
+
+def test_seconds_law_parameters_are_checked():
+    from trustnav.trust import TrustParams
+
+    with pytest.raises(ValueError, match="time_constants"):
+        TrustParams(time_constants=(1.0, 2.0, 3.0))
+    with pytest.raises(ValueError, match="time_constants"):
+        TrustParams(time_constants=(1.0, 2.0, 0.0, 3.0))
+    with pytest.raises(ValueError, match="fluctuation_interval"):
+        TrustParams(fluctuation_interval=-1.0)

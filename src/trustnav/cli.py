@@ -362,7 +362,7 @@ def _estimate(args: argparse.Namespace) -> int:
     from trustnav.perception.pipeline import PerceptionPipeline, estimate
     from trustnav.perception.tracking import PersonTracker
     from trustnav.trust.estimator import TrustEstimator
-    from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST
+    from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST, SECONDS_TRUST
     from trustnav.viz.annotate import annotate
 
     # everything that can be refused is refused before the output folder is touched
@@ -403,7 +403,8 @@ def _estimate(args: argparse.Namespace) -> int:
                 pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), eye)
                 images.start(seq, fps)
                 bar.set_description(seq.label[-30:])
-                trust = TrustEstimator(MOVING_AVERAGE_TRUST if args.trust == "moving-average" else PAPER_TRUST)
+                law = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST, "moving-average": MOVING_AVERAGE_TRUST}
+                trust = TrustEstimator(law[args.trust])
                 for res in estimate(iter_sequence(seq.files), pipeline, trust, fps, report, seq.label):
                     bar.update(1)
                     if res.error is not None:
@@ -795,8 +796,10 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"mediapipe: share the tiled search over N frames, {_range('scan_frames')} (faster, fewer found)",
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
-    e.add_argument("--trust", choices=["paper", "moving-average"], default="paper",
-                   help="paper: PAPER_TRUST, only rises (default); moving-average: MOVING_AVERAGE_TRUST")  # fmt: skip
+    e.add_argument("--trust", choices=["seconds", "paper", "moving-average"], default="seconds",
+                   help="seconds: SECONDS_TRUST, the same trust after the same seconds at any frame rate (default); "
+                   "paper: PAPER_TRUST, a step per frame, rises only; moving-average: MOVING_AVERAGE_TRUST",
+                   )  # fmt: skip
     e.add_argument("--no-images", action="store_true", help="write only tracks.csv/json")
     e.add_argument("--camera-height", type=float,
                    help=f"the camera's height above flat ground, {_range('camera_height')}: places each person on "

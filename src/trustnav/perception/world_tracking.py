@@ -14,7 +14,10 @@ identity survives frames that are a second apart and people who leave the view f
   filter would lend every bystander the velocity noise of a walker);
 * **association** of a frame's estimates with the tracks predicted to the frame's time: squared
   Mahalanobis distance of the ground positions (gated at ``gate``), minus a bonus for image
-  overlap with the track's last box when that box is recent; one-to-one by the Hungarian method;
+  overlap with the track's last box when that box is recent; one-to-one by the Hungarian method.
+  Monocular range has a heavy tail, so a confirmed track may also take an estimate up to 5 gates
+  away (a box overlapping its recent box, IoU >= 0.5, up to 10), that estimate then believed only
+  as far as the gate allows (its covariance scaled up): one bad placement does not split a person;
 * **birth** of a tentative track from an estimate no track takes, **confirmation** after
   ``confirm_hits`` hits, **deletion** of a tentative track at its first miss; a confirmed track
   is deleted when it should have been seen and was not for ``keep_seconds`` (its predicted
@@ -30,7 +33,7 @@ controller's rate is not the camera's).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -229,6 +232,7 @@ class WorldTracker:
             from scipy.optimize import linear_sum_assignment
 
             cost = np.full((n_t, n_d), np.inf)
+            dist2 = np.full((n_t, n_d), np.inf)
             for a, t in enumerate(self.tracks):
                 s_pos = t.covariance[:2, :2]
                 recent = t.box is not None and time - t.last_seen <= cfg.overlap_seconds
@@ -237,12 +241,17 @@ class WorldTracker:
                     assert e is not None
                     d = e.position - t.mean[:2]
                     m2 = float(d @ np.linalg.solve(s_pos + e.covariance, d))
-                    if m2 > cfg.gate:
-                        continue
-                    bonus = 0.0
+                    iou = 0.0
                     if recent and boxes is not None and boxes[i] is not None:
-                        bonus = cfg.overlap_bonus * box_iou(t.box, np.asarray(boxes[i], dtype=float))
-                    cost[a, b] = m2 - bonus
+                        iou = box_iou(t.box, np.asarray(boxes[i], dtype=float))
+                    # one bad placement (the heavy tail of monocular range) must not split a person in
+                    # two: a confirmed track may take an estimate up to 5 gates away, a box that
+                    # overlaps the track's box of a moment ago up to 10 (at a higher cost)
+                    loose = (t.confirmed and m2 <= 5.0 * cfg.gate) or (iou >= 0.5 and m2 <= 10.0 * cfg.gate)
+                    if m2 > cfg.gate and not loose:
+                        continue
+                    dist2[a, b] = m2
+                    cost[a, b] = m2 - cfg.overlap_bonus * iou
             finite = np.where(np.isfinite(cost), cost, 1e9)
             rows, cols = linear_sum_assignment(finite)
             for a, b in zip(rows, cols, strict=True):
@@ -252,6 +261,8 @@ class WorldTracker:
                 e = estimates[i]
                 assert e is not None
                 t = self.tracks[a]
+                if dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
+                    e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
                 self._correct(t, e)
                 t.hits += 1
                 t.last_seen = float(time)

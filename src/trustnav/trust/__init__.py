@@ -11,6 +11,7 @@ from trustnav.trust.params import (
     PAPER_GAMMA_CARLA,
     PAPER_GAMMA_NUMERICAL,
     PAPER_TRUST,
+    SECONDS_TRUST,
     GammaParams,
     TrustParams,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "PAPER_GAMMA_NUMERICAL",
     "PAPER_TRAITS",
     "PAPER_TRUST",
+    "SECONDS_TRUST",
     "SMARTPHONE",
     "CueTrait",
     "EyeContact",

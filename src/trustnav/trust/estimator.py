@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from trustnav.trust import traits as tr
 from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 from trustnav.trust.params import PAPER_TRUST, TrustParams, as_number
-from trustnav.trust.parts import Trait, TraitSet, TraitStep, paper_traits
+from trustnav.trust.parts import Trait, TraitSet, TraitStep, paper_traits, relax
 
 __all__ = ["Observation", "TrackState", "TrustEstimator"]
 
@@ -164,7 +164,10 @@ class TrustEstimator:
         steps = {t.name: _checked(t, t.update(st.steps[t.name], obs), "update") for t in self.traits}
         st.steps = steps
         st.score = float(self.traits.score([s.value for s in steps.values()]))
-        st.trust = float(tr.trust_update(st.trust, st.score, p))
+        if p.time_constants is None:
+            st.trust = float(tr.trust_update(st.trust, st.score, p))
+        else:  # the rate-invariant law: relax toward the score over the time since the last observation
+            st.trust = float(tr.sat01(relax(st.trust, st.score, obs.time - st.last_seen, p.time_constants[3])))
         st.last_seen = obs.time
         st.observations += 1
         return st

@@ -11,6 +11,7 @@ __all__ = [
     "PAPER_GAMMA_CARLA",
     "PAPER_GAMMA_NUMERICAL",
     "PAPER_TRUST",
+    "SECONDS_TRUST",
     "GammaParams",
     "TrustParams",
 ]
@@ -42,6 +43,22 @@ class TrustParams:
     rho: weights of the total score `lin_comb` for (smartphone, eye contact, pose fluctuation);
     nu1, nu01: `smato_score`; nu2, nu02: `eye_score`; nu3, nu03: `pose_score`;
     fluctuation_sensitivity: F in `pose_conf`; alpha, beta, beta0: `agg_trust`.
+
+    ``time_constants`` chooses the law. None (default): the paper's, one step per observation,
+    however far apart observations are (trust then grows with the number of frames, not with
+    time). Four positive numbers (T_1, T_2, T_3, T_tau) in seconds: the rate-invariant law, in
+    which each trait and the trust relax toward the value their current input asks for with that
+    time constant over the time elapsed since the track's previous observation,
+
+        x(t) = x* + (x(t_prev) - x*) exp(-(t - t_prev) / T_x),
+        x* = 1 - C_sm (s_1), C_eye (s_2), C_fluc (s_3), S (tau),
+
+    the exact solution of dx/dt = (x* - x) / T_x with the input held over the interval, so the
+    value after t seconds of the same behaviour does not depend on the frame rate; pose
+    fluctuation then compares poses ``fluctuation_interval`` seconds apart (:class:`PoseFluctuation`).
+    The "(0)" formulas (nu01, nu02, nu03, beta0) start a track in both laws; nu1, nu2, nu3, alpha and
+    beta are the per-frame law's only. A distracted person's trust tends to their low score, however
+    long they are watched.
     """
 
     rho: tuple[float, float, float] = (0.4, 0.5, 0.1)
@@ -55,8 +72,22 @@ class TrustParams:
     alpha: float = 1.0
     beta: float = 0.08
     beta0: float = 0.55
+    time_constants: tuple[float, float, float, float] | None = None
+    fluctuation_interval: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.time_constants is not None:
+            tc = self.time_constants
+            if isinstance(tc, (str, bytes)) or not hasattr(tc, "__len__") or len(tc) != 4:
+                raise ValueError(f"time_constants must be 4 seconds (T_1, T_2, T_3, T_tau) or None, got {tc!r}")
+            vals = tuple(as_number(f"time_constants[{i}]", v) for i, v in enumerate(tc))
+            if not all(0.0 < v < math.inf for v in vals):
+                raise ValueError(f"time_constants must be positive finite seconds, got {tc!r}")
+            object.__setattr__(self, "time_constants", vals)
+        fi = as_number("fluctuation_interval", self.fluctuation_interval)
+        if not 0.0 < fi < math.inf:
+            raise ValueError(f"fluctuation_interval must be positive seconds, got {self.fluctuation_interval!r}")
+        object.__setattr__(self, "fluctuation_interval", fi)
         if isinstance(self.rho, (str, bytes)) or not hasattr(self.rho, "__len__") or len(self.rho) != 3:
             raise ValueError(f"rho must have 3 weights (smartphone, eye contact, pose) summing to 1, got {self.rho!r}")
         rho = tuple(_check_range(f"rho[{i}]", r, 0.0, 1.0) for i, r in enumerate(self.rho))
@@ -106,6 +137,10 @@ class GammaParams:
 PAPER_TRUST = TrustParams()
 #: `agg_trust` as a moving average (alpha + beta = 1, beta0 = 1), as described after `agg_trust`.
 MOVING_AVERAGE_TRUST = TrustParams(alpha=0.92, beta=0.08, beta0=1.0)
+#: The rate-invariant law (see :class:`TrustParams`), the default of video input and the drive:
+#: smartphone use and eye contact follow their cue with 2 s, pose fluctuation with 4 s and the
+#: trust its score with 3 s time constants; the paper's weights and "(0)" formulas.
+SECONDS_TRUST = TrustParams(time_constants=(2.0, 2.0, 4.0, 3.0))
 #: Section III numerical simulations: gamma_ini = 0.03, delta = 0.08, lambda = 1.5.
 PAPER_GAMMA_NUMERICAL = GammaParams(gamma_ini=0.03, delta=0.08, lam=1.5)
 #: Section IV CARLA simulations: gamma_ini = 0.08, delta = 0.55, lambda = 2.

@@ -56,11 +56,19 @@ __all__ = [
 @dataclass(frozen=True)
 class TraitStep:
     """One trait of one track after a step: ``value`` s_i (NaN: not available yet), ``confidence``
-    the input it last used (NaN: none yet), ``memory`` what the next update needs (or None)."""
+    the input it last used (NaN: none yet), ``memory`` what the next update needs (or None),
+    ``time`` of the observation it last used (s; NaN: not recorded)."""
 
     value: float
     confidence: float = math.nan
     memory: Any = None
+    time: float = math.nan
+
+
+def relax(value: float, target: float, dt: float, time_constant: float) -> float:
+    """The rate-invariant step: ``value`` relaxed toward ``target`` over ``dt`` seconds with
+    ``time_constant`` (exact for dx/dt = (target - x) / T with the target held)."""
+    return float(target + (value - target) * math.exp(-max(dt, 0.0) / time_constant))
 
 
 @runtime_checkable
@@ -89,6 +97,11 @@ def _check_name_weight(kind: str, name: object, weight: object) -> float:
     if not 0.0 <= w < math.inf:
         raise ValueError(f"trait {name!r} weight (rho in lin_comb) must be a finite number >= 0, got {weight!r}")
     return w
+
+
+def _check_time_constant(name: str, t: object) -> None:
+    if t is not None and not 0.0 < as_number(f"trait {name!r} time_constant", t) < math.inf:
+        raise ValueError(f"trait {name!r} time_constant must be a positive number of seconds (or None), got {t!r}")
 
 
 def _unit(name: str, value: object, *, lo_open: bool = False) -> float:
@@ -124,32 +137,45 @@ class CueTrait:
         """s(t) from s(t-1) and the confidence c(t)."""
         raise NotImplementedError(f"{type(self).__name__} must define step(prev, c)")
 
+    def step_after(self, prev: float, c: float, dt: float) -> float:
+        """s(t) from s(t - dt): :meth:`step` (one step per observation) unless the trait has a
+        time constant (the rate-invariant law of :class:`~trustnav.trust.params.TrustParams`)."""
+        return self.step(prev, c)
+
     def initial(self, obs: Observation) -> TraitStep:
         c = obs.cue(self.cue)
-        return TraitStep(math.nan) if c is None else TraitStep(float(self.start(c)), c)
+        return TraitStep(math.nan, time=obs.time) if c is None else TraitStep(float(self.start(c)), c, time=obs.time)
 
     def update(self, prev: TraitStep, obs: Observation) -> TraitStep:
         c = obs.cue(self.cue)
         if c is None:
             return prev
-        value = self.start(c) if math.isnan(prev.value) else self.step(prev.value, c)
-        return TraitStep(float(value), c)
+        if math.isnan(prev.value):
+            value = self.start(c)
+        elif math.isnan(prev.time):
+            value = self.step(prev.value, c)
+        else:
+            value = self.step_after(prev.value, c, obs.time - prev.time)
+        return TraitStep(float(value), c, time=obs.time)
 
 
 @dataclass(frozen=True)
 class SmartphoneUse(CueTrait):
-    """`smato_score`: s_1(0) = nu0 (1 - C_sm(0)); s_1(t) = nu s_1(t-1) + (1 - nu)(1 - C_sm(t))."""
+    """`smato_score`: s_1(0) = nu0 (1 - C_sm(0)); s_1(t) = nu s_1(t-1) + (1 - nu)(1 - C_sm(t)).
+    With ``time_constant`` T (s): s_1 relaxes toward 1 - C_sm with T (rate-invariant law)."""
 
     name: str = SMARTPHONE
     weight: float = 0.4
     cue: str = SMARTPHONE
     nu: float = 0.6
     nu0: float = 1.0
+    time_constant: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "nu", _unit(f"trait {self.name!r} nu", self.nu))
         object.__setattr__(self, "nu0", _unit(f"trait {self.name!r} nu0", self.nu0, lo_open=True))
+        _check_time_constant(self.name, self.time_constant)
 
     def start(self, c: float) -> float:
         return self.nu0 * (1.0 - c)
@@ -157,21 +183,30 @@ class SmartphoneUse(CueTrait):
     def step(self, prev: float, c: float) -> float:
         return self.nu * prev + (1.0 - self.nu) * (1.0 - c)
 
+    def step_after(self, prev: float, c: float, dt: float) -> float:
+        if self.time_constant is None:
+            return self.step(prev, c)
+        return relax(prev, 1.0 - c, dt, self.time_constant)
+
 
 @dataclass(frozen=True)
 class EyeContact(CueTrait):
-    """`eye_score`: s_2(0) = nu0 C_eye(0); s_2(t) = sat(s_2(t-1) + nu C_eye(t)) (never decreases)."""
+    """`eye_score`: s_2(0) = nu0 C_eye(0); s_2(t) = sat(s_2(t-1) + nu C_eye(t)) (never decreases).
+    With ``time_constant`` T (s): s_2 relaxes toward C_eye with T (rate-invariant law; eye
+    contact then has to be kept up, not only made once)."""
 
     name: str = EYE_CONTACT
     weight: float = 0.5
     cue: str = EYE_CONTACT
     nu: float = 0.10
     nu0: float = 1.0
+    time_constant: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "nu", _unit(f"trait {self.name!r} nu", self.nu))
         object.__setattr__(self, "nu0", _unit(f"trait {self.name!r} nu0", self.nu0, lo_open=True))
+        _check_time_constant(self.name, self.time_constant)
 
     def start(self, c: float) -> float:
         return self.nu0 * c
@@ -179,20 +214,35 @@ class EyeContact(CueTrait):
     def step(self, prev: float, c: float) -> float:
         return float(tr.sat01(prev + self.nu * c))
 
+    def step_after(self, prev: float, c: float, dt: float) -> float:
+        if self.time_constant is None:
+            return self.step(prev, c)
+        return relax(prev, c, dt, self.time_constant)
+
 
 @dataclass(frozen=True)
 class PoseFluctuation:
     """`pose_score` from `pose_conf`: s_3(0) = nu0 (available without an observation);
     s_3(t) = nu s_3(t-1) + (1 - nu) C_fluc(t), C_fluc comparing the pose relative to its box with
-    the previous one of the same track, however long ago (memory: that relative pose)."""
+    the previous one of the same track, however long ago (memory: that relative pose).
+
+    With ``time_constant`` T (s, the rate-invariant law): C_fluc compares the pose with the one
+    ``interval`` seconds before (the nearest kept, its motion scaled to ``interval``; none older
+    than half of it yet: no update), and s_3 relaxes toward C_fluc with T. Memory: the poses of the
+    last two intervals with their times."""
 
     name: str = "pose_fluctuation"
     weight: float = 0.1
     nu: float = 0.8
     nu0: float = 0.5
     sensitivity: float = 0.25  # F in `pose_conf`
+    time_constant: float | None = None
+    interval: float = 1.0
 
     def __post_init__(self) -> None:
+        _check_time_constant(self.name, self.time_constant)
+        if not 0.0 < as_number(f"trait {self.name!r} interval", self.interval) < math.inf:
+            raise ValueError(f"trait {self.name!r} interval must be positive seconds, got {self.interval!r}")
         object.__setattr__(self, "weight", _check_name_weight("trait", self.name, self.weight))
         object.__setattr__(self, "nu", _unit(f"trait {self.name!r} nu", self.nu))
         object.__setattr__(self, "nu0", _unit(f"trait {self.name!r} nu0", self.nu0, lo_open=True))
@@ -206,17 +256,36 @@ class PoseFluctuation:
         return None if obs.keypoints is None else tr.relative_pose(obs.keypoints, obs.bbox)
 
     def initial(self, obs: Observation) -> TraitStep:
-        return TraitStep(self.nu0, math.nan, self._pose(obs))
+        rel = self._pose(obs)
+        if self.time_constant is not None:
+            return TraitStep(self.nu0, math.nan, [] if rel is None else [(obs.time, rel)], obs.time)
+        return TraitStep(self.nu0, math.nan, rel, obs.time)
 
     def update(self, prev: TraitStep, obs: Observation) -> TraitStep:
         rel = self._pose(obs)
         if rel is None:
             return prev
+        if self.time_constant is not None:
+            return self._update_in_seconds(prev, obs.time, rel)
         last = prev.memory
         if last is not None and np.any(np.isfinite(rel - last).all(axis=1)):
             c = tr.fluctuation_confidence(rel, last, self.sensitivity)
-            return TraitStep(self.nu * prev.value + (1.0 - self.nu) * c, c, rel)
-        return TraitStep(prev.value, prev.confidence, rel)
+            return TraitStep(self.nu * prev.value + (1.0 - self.nu) * c, c, rel, obs.time)
+        return TraitStep(prev.value, prev.confidence, rel, obs.time)
+
+    def _update_in_seconds(self, prev: TraitStep, t: float, rel: NDArray[np.float64]) -> TraitStep:
+        assert self.time_constant is not None
+        kept = [(ti, p) for ti, p in (prev.memory or []) if t - ti <= 2.0 * self.interval and ti < t]
+        old = [(ti, p) for ti, p in kept if t - ti >= 0.5 * self.interval and np.isfinite(rel - p).all(axis=1).any()]
+        value, conf = prev.value, prev.confidence
+        if old:
+            ti, p = min(old, key=lambda item: abs((t - item[0]) - self.interval))
+            # the motion over t - ti scaled to one interval: F is defined for poses `interval` apart
+            scale = (t - ti) / self.interval
+            conf = tr.fluctuation_confidence(rel, p, self.sensitivity * scale)
+            prev_t = prev.time if math.isfinite(prev.time) else ti
+            value = relax(prev.value, conf, t - prev_t, self.time_constant)
+        return TraitStep(value, conf, [*kept, (t, rel)], t)
 
 
 @dataclass(frozen=True)
@@ -290,10 +359,12 @@ def paper_traits(params: TrustParams = PAPER_TRUST) -> TraitSet:
     if not isinstance(params, TrustParams):
         raise ValueError(f"params must be a TrustParams (e.g. PAPER_TRUST), got {type(params).__name__}")
     p = params
+    t1, t2, t3, _ = p.time_constants or (None, None, None, None)
     return TraitSet((
-        SmartphoneUse(weight=p.rho[0], nu=p.nu1, nu0=p.nu01),
-        EyeContact(weight=p.rho[1], nu=p.nu2, nu0=p.nu02),
-        PoseFluctuation(weight=p.rho[2], nu=p.nu3, nu0=p.nu03, sensitivity=p.fluctuation_sensitivity),
+        SmartphoneUse(weight=p.rho[0], nu=p.nu1, nu0=p.nu01, time_constant=t1),
+        EyeContact(weight=p.rho[1], nu=p.nu2, nu0=p.nu02, time_constant=t2),
+        PoseFluctuation(weight=p.rho[2], nu=p.nu3, nu0=p.nu03, sensitivity=p.fluctuation_sensitivity,
+                        time_constant=t3, interval=p.fluctuation_interval),
     ))  # fmt: skip
 
 

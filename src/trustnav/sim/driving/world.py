@@ -27,7 +27,7 @@ from trustnav.perception.localisation import LocaliserConfig
 from trustnav.perception.world_tracking import WorldTrackerConfig
 from trustnav.sim.driving import body
 from trustnav.sim.driving.street import StreetSpec
-from trustnav.trust import PAPER_GAMMA_CARLA, GammaParams
+from trustnav.trust import PAPER_GAMMA_CARLA, PAPER_TRUST, SECONDS_TRUST, GammaParams, TrustParams
 
 __all__ = [
     "DRIVE_SCENARIOS",
@@ -44,6 +44,8 @@ __all__ = [
 ]
 
 DRIVE_SCENARIOS = ("case-1", "case-2")
+#: The trust laws a scenario may choose (SensingSpec.trust_law).
+TRUST_LAWS: dict[str, TrustParams] = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST}
 
 
 def _pair(name: str, v: Any) -> tuple[float, float]:
@@ -174,7 +176,10 @@ class SensingSpec:
     share of the person's image height), ``dropout`` (probability that a visible joint is missed),
     ``miss_rate`` (probability that a visible person is not detected in a frame), ``min_joints``
     (joints inside the image needed to detect a person), ``min_height_px``. Trust memory:
-    ``keep_time`` (s; inf keeps the last trust of a pedestrian who left the view, as the paper).
+    ``keep_time`` (s; inf keeps the last trust of a pedestrian who left the view, as the paper);
+    ``trust_law``: "seconds" (default: the rate-invariant law, ``trust.SECONDS_TRUST``: the same
+    trust after the same seconds at any camera rate) or "paper" (``PAPER_TRUST``: one step per
+    frame, as the paper at 1 frame/s).
     ``detector_bias``: the detector's error model: each joint moved as BlazePose does on rendered
     frames (``sensing.DETECTOR_V_BIAS``), all joints of a person shifted by a common vertical
     offset of sigma ``common_noise``, and a share ``outlier_rate`` of joints off by sigma
@@ -196,6 +201,7 @@ class SensingSpec:
     min_joints: int = 9
     min_height_px: float = 24.0
     keep_time: float = math.inf
+    trust_law: str = "seconds"
     detector_bias: bool = True
     common_noise: float = 0.009
     outlier_rate: float = 0.1
@@ -207,6 +213,8 @@ class SensingSpec:
     track_keep: float = 2.5
 
     def __post_init__(self) -> None:
+        if self.trust_law not in TRUST_LAWS:
+            raise ValueError(f"trust_law must be one of {tuple(TRUST_LAWS)}, got {self.trust_law!r}")
         if not isinstance(self.detector_bias, bool):
             raise ValueError(f"detector_bias must be true or false, got {self.detector_bias!r}")
         for name in (
@@ -226,6 +234,10 @@ class SensingSpec:
             raise ValueError(f"min_joints must be an integer in [1, 17], got {self.min_joints!r}")
         self.localiser()  # validates stature, stature_sigma, pitch_sigma_deg
         self.tracker()  # validates accel_psd, track_keep
+
+    def trust_params(self) -> TrustParams:
+        """The trust law's parameters (``trust_law``)."""
+        return TRUST_LAWS[self.trust_law]
 
     def localiser(self) -> LocaliserConfig:
         """The ground-plane localiser's configuration."""
