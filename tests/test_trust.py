@@ -253,7 +253,7 @@ def _watch(params, fps: float, seconds: float, c_sm: float, c_eye: float, seed: 
     base = np.array([[50.0 + 20.0 * np.sin(i), 10.0 + 5.0 * i] for i in range(17)])
     est = TrustEstimator(params)
     out = {}
-    for k in range(int(round(seconds * fps)) + 1):
+    for k in range(round(seconds * fps) + 1):
         t = k / fps
         kp = base + rng.normal(0.0, 0.4, base.shape)  # a person standing: keypoint jitter only
         est.observe(Observation(track_id=0, time=t, c_smartphone=c_sm, c_eye=c_eye, keypoints=kp,

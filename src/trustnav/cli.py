@@ -376,13 +376,19 @@ def _estimate(args: argparse.Namespace) -> int:
         raise ValueError("--fov and --pitch place people on the ground only with --camera-height")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
+    face = None
+    if args.face:  # eye contact from the face too, fused with LOOKING (graphs loaded once, shared)
+        from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact
+
+        face = FaceEyeContact(FaceConfig(fov_deg=70.0 if args.fov is None else args.fov))
     folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
     earlier = folder.has_earlier_outputs()
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
         out = folder.path
         kwargs = {"scan_frames": args.scan_frames} if args.backend == "mediapipe" else {}
         backend = make_backend(args.backend, video=True, **kwargs)
-        sink = _RecordSink(out, () if ground is None else ground.FIELDS)
+        face_fields = () if face is None else FACE_FIELDS  # --face: eye_contact_face, face_confidence
+        sink = _RecordSink(out, face_fields + (() if ground is None else ground.FIELDS))
         images = _Annotations(out, sequences, args.mp4)
         counts = {"read": 0, "skipped": 0}
         interrupted = False
@@ -400,7 +406,13 @@ def _estimate(args: argparse.Namespace) -> int:
                 fps = source_fps(list(seq.files), args.fps) if seq.has_video else args.fps
                 if hasattr(backend, "reset"):
                     backend.reset()  # nothing followed from the previous sequence
-                pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), eye)
+                if face is None:
+                    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), eye)
+                else:
+                    from trustnav.perception.cues import default_cues, with_face
+
+                    cues = with_face(default_cues(eye), face)
+                    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), cues=cues)
                 images.start(seq, fps)
                 bar.set_description(seq.label[-30:])
                 law = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST, "moving-average": MOVING_AVERAGE_TRUST}
@@ -796,6 +808,9 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"mediapipe: share the tiled search over N frames, {_range('scan_frames')} (faster, fewer found)",
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
+    e.add_argument("--face", action="store_true",
+                   help="eye contact from the face too (face detection + mesh on people >= 100 px tall), fused "
+                   "with LOOKING by confidence; adds eye_contact_face and face_confidence to the tables")  # fmt: skip
     e.add_argument("--trust", choices=["seconds", "paper", "moving-average"], default="seconds",
                    help="seconds: SECONDS_TRUST, the same trust after the same seconds at any frame rate (default); "
                    "paper: PAPER_TRUST, a step per frame, rises only; moving-average: MOVING_AVERAGE_TRUST",

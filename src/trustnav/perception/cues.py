@@ -13,17 +13,28 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact, fuse_eye_contact
 from trustnav.perception.looking import LookingModel, normalise_keypoints
-from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier
+from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier, TemporalPhoneModel, fuse_crop
 from trustnav.perception.types import Person
 from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE
 
-__all__ = ["CueExtractor", "EyeContactCue", "PhoneUseCue", "check_cues", "default_cues", "run_cue"]
+__all__ = [
+    "CueExtractor",
+    "EyeContactCue",
+    "FaceEyeContactCue",
+    "FaceFieldCue",
+    "PhoneUseCue",
+    "check_cues",
+    "default_cues",
+    "run_cue",
+    "with_face",
+]
 
 
 @runtime_checkable
@@ -55,23 +66,119 @@ class EyeContactCue:
 
 
 @dataclass(frozen=True)
+class FaceEyeContactCue(EyeContactCue):
+    """C_eye from LOOKING fused with the face (:mod:`trustnav.perception.face`) by confidence:
+    C_eye = (1 - a) p_looking + a p_face, a = max_face_weight * c_face; LOOKING alone on people too
+    small for a face (:func:`~trustnav.perception.face.fuse_eye_contact`)."""
+
+    face: FaceEyeContact = field(default_factory=FaceEyeContact)
+
+    def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> NDArray[np.float64]:
+        looking = super().__call__(frame, people)
+        faces = self.face(frame, people)
+        w = self.face.config.max_face_weight
+        return np.array(
+            [fuse_eye_contact(float(p), f.probability, f.confidence, w) for p, f in zip(looking, faces, strict=True)]
+        )
+
+
+@dataclass(frozen=True)
+class FaceFieldCue:
+    """The face analysis's own numbers as record fields: ``eye_contact_face`` (p_face) or
+    ``face_confidence`` (c_face); NaN (not judged) where no face was looked for. Shares the
+    analysis (cached per frame) of the :class:`FaceEyeContactCue` it is built with."""
+
+    face: FaceEyeContact
+    name: str = FACE_FIELDS[0]
+
+    def __post_init__(self) -> None:
+        if self.name not in FACE_FIELDS:
+            raise ValueError(f"a face field is one of {FACE_FIELDS}, got {self.name!r}")
+
+    def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> list[float]:
+        faces = self.face(frame, people)
+        if self.name == FACE_FIELDS[0]:
+            return [f.probability for f in faces]
+        return [math.nan if math.isnan(f.probability) else f.confidence for f in faces]
+
+
+def with_face(
+    cues: Sequence[CueExtractor], face: FaceEyeContact | FaceConfig | None = None
+) -> tuple[CueExtractor, ...]:
+    """``cues`` with the LOOKING eye-contact cue replaced by :class:`FaceEyeContactCue` (same model)
+    and the face fields (:data:`~trustnav.perception.face.FACE_FIELDS`) added; ``trustnav estimate
+    --face``. ``face``: an analyser to share (its graphs load once) or its configuration.
+    ValueError if ``cues`` has no :class:`EyeContactCue`."""
+    face = face if isinstance(face, FaceEyeContact) else FaceEyeContact(face)
+    out: list[CueExtractor] = []
+    found = False
+    for c in cues:
+        if isinstance(c, EyeContactCue) and not found:
+            out.append(FaceEyeContactCue(c.model, c.name, face))
+            found = True
+        else:
+            out.append(c)
+    if not found:
+        raise ValueError("with_face needs an EyeContactCue (LOOKING) among the cues to fuse the face with")
+    return (*out, *(FaceFieldCue(face, n) for n in FACE_FIELDS))
+
+
+@dataclass(frozen=True)
 class PhoneUseCue:
-    """C_sm for `smato_score`: a :class:`~trustnav.perception.phone.PhoneClassifier` per person."""
+    """C_sm for `smato_score`: a :class:`~trustnav.perception.phone.PhoneClassifier` per person.
+
+    With ``temporal`` (a :class:`~trustnav.perception.phone.TemporalPhoneModel`, the default of
+    :func:`default_cues`) and the people's track IDs and the frame time (the pipeline passes them:
+    ``uses_tracks``), C_sm is the posture over the last seconds of each track fused with this frame's
+    geometry; without them, the classifier on this frame alone. ``crop``: a user's image classifier
+    on the person crop (:class:`~trustnav.perception.phone.CropPhoneClassifier`), fused by
+    confidence (:func:`~trustnav.perception.phone.fuse_crop`).
+    """
 
     classifier: PhoneClassifier = field(default_factory=PoseGeometryPhoneClassifier)
     name: str = SMARTPHONE
+    temporal: TemporalPhoneModel | None = None
+    crop: PhoneClassifier | None = None
+    uses_tracks: ClassVar[bool] = True  # run_cue passes track_ids and time
 
     def __post_init__(self) -> None:
         if not callable(self.classifier):
             raise ValueError(f"phone must be a PhoneClassifier (callable), got {type(self.classifier).__name__}")
+        if self.temporal is not None and not hasattr(self.temporal, "update"):
+            raise ValueError(f"temporal must be a TemporalPhoneModel, got {type(self.temporal).__name__}")
+        if self.crop is not None and not callable(self.crop):
+            raise ValueError(f"crop must be a PhoneClassifier (callable), got {type(self.crop).__name__}")
 
-    def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> list[float]:
-        return [float(self.classifier(frame, p)) for p in people]
+    def __call__(
+        self,
+        frame: NDArray[np.uint8],
+        people: Sequence[Person],
+        track_ids: Sequence[int] | None = None,
+        time: float | None = None,
+    ) -> list[float]:
+        if self.temporal is None or track_ids is None:
+            out = [float(self.classifier(frame, p)) for p in people]
+        else:
+            out = [
+                self.temporal.update(tid, time, p.keypoints, p.confidences).phone
+                for tid, p in zip(track_ids, people, strict=True)
+            ]
+        if self.crop is not None:
+            out = [
+                fuse_crop(c, float(self.crop(frame, p)), float(p.bbox[3] - p.bbox[1]))
+                for c, p in zip(out, people, strict=True)
+            ]
+        return out
 
 
 def default_cues(eye_model: LookingModel, phone: PhoneClassifier | None = None) -> tuple[CueExtractor, ...]:
-    """The paper's image cues: eye contact (LOOKING) and smartphone use (pose geometry by default)."""
-    return (EyeContactCue(eye_model), PhoneUseCue(phone or PoseGeometryPhoneClassifier()))
+    """The paper's image cues: eye contact (LOOKING) and smartphone use (by default the pose
+    geometry made temporal per track, :class:`~trustnav.perception.phone.TemporalPhoneModel`; a
+    user's ``phone`` classifier is used as given, frame by frame)."""
+    if phone is None or isinstance(phone, PoseGeometryPhoneClassifier):
+        geometry = phone or PoseGeometryPhoneClassifier()
+        return (EyeContactCue(eye_model), PhoneUseCue(geometry, temporal=TemporalPhoneModel(geometry)))
+    return (EyeContactCue(eye_model), PhoneUseCue(phone))
 
 
 def check_cues(cues: Sequence[CueExtractor]) -> tuple[CueExtractor, ...]:
@@ -89,9 +196,23 @@ def check_cues(cues: Sequence[CueExtractor]) -> tuple[CueExtractor, ...]:
     return tuple(cues)
 
 
-def run_cue(cue: CueExtractor, frame: NDArray[np.uint8], people: Sequence[Person]) -> list[float]:
-    """The cue's confidences for ``people``, checked: one per person, each in [0, 1] or NaN."""
-    values = list(cue(frame, people))
+def run_cue(
+    cue: CueExtractor,
+    frame: NDArray[np.uint8],
+    people: Sequence[Person],
+    *,
+    track_ids: Sequence[int] | None = None,
+    time: float | None = None,
+) -> list[float]:
+    """The cue's confidences for ``people``, checked: one per person, each in [0, 1] or NaN.
+
+    A cue with ``uses_tracks = True`` (temporal cues) is called as ``cue(frame, people,
+    track_ids=..., time=...)`` (track ID per person, -1 if untracked; frame time in seconds, None
+    if unknown); every other cue as ``cue(frame, people)``."""
+    if getattr(cue, "uses_tracks", False):
+        values = list(cue(frame, people, track_ids=track_ids, time=time))
+    else:
+        values = list(cue(frame, people))
     if len(values) != len(people):
         raise ValueError(f"cue {cue.name!r} gave {len(values)} confidences for {len(people)} people")
     out = [float(v) for v in values]

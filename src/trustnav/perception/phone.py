@@ -8,13 +8,21 @@ offline, so the default reads the pose (COCO 17 keypoints, image y downwards):
 * calling: a wrist at the face (near an ear).
 
 C_sm = max(texting, calling) in [0, 1]. :class:`PhoneClassifier` is the interface; an image
-classifier on the person crop (the paper's design) plugs in the same way.
+classifier on the person crop (the paper's design) plugs in the same way: :class:`CropPhoneClassifier`
+runs a user's ONNX/TFLite file through OpenCV's DNN module, fused by confidence (:func:`fuse_crop`).
+
+One frame's geometry cannot tell a held phone from an arm on its swing: :class:`TemporalPhoneModel`
+follows each track over the last seconds (hands held still in the phone pose vs swinging with the
+gait) and fuses that with the frame's geometry; it is the pipeline's default (see
+docs/perception.md, "Phone use over time").
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -22,7 +30,15 @@ from numpy.typing import NDArray
 
 from trustnav.perception.types import Person
 
-__all__ = ["PhoneClassifier", "PoseGeometryPhoneClassifier", "phone_label"]
+__all__ = [
+    "CropPhoneClassifier",
+    "PhoneClassifier",
+    "PoseGeometryPhoneClassifier",
+    "TemporalPhoneModel",
+    "TemporalPhoneResult",
+    "fuse_crop",
+    "phone_label",
+]
 
 
 @runtime_checkable
@@ -76,36 +92,353 @@ class PoseGeometryPhoneClassifier:
         kp = np.asarray(keypoints, dtype=float)
         if kp.shape != (17, 2):
             raise ValueError(f"keypoints must have shape (17, 2), got {kp.shape}")
+        return float(np.clip(self.per_wrist(kp, confidences).max(initial=0.0), 0.0, 1.0))
+
+    def per_wrist(
+        self, keypoints: NDArray[np.float64], confidences: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
+        """The cue of each wrist (left, right): max(texting, calling) for that hand, in [0, 1]."""
+        kp = np.asarray(keypoints, dtype=float)
+        out = np.zeros(2)
         ok_body = np.isfinite(kp).all(axis=1)
-        if not ok_body[[5, 6, 11, 12]].all():
-            return 0.0
+        if kp.shape != (17, 2) or not ok_body[[5, 6, 11, 12]].all():
+            return out
         shoulders = kp[[5, 6]].mean(axis=0)
         hips = kp[[11, 12]].mean(axis=0)
         torso = float(np.hypot(*(hips - shoulders)))
         if torso < 1e-6:
-            return 0.0
-        # body-relative units use the torso length: shoulder and head widths vanish in profile
+            return out
         down = 0.0
         if ok_body[[0, 3, 4]].all():
             drop = (kp[0, 1] - kp[[3, 4], 1].mean()) / torso
             down = _ramp(drop, *self.head_down)
         lo, hi = self.raise_band
-        texting = calling = 0.0
         conf = np.ones(17) if confidences is None else np.asarray(confidences, dtype=float)
-        for wrist, shoulder, hip in ((9, 5, 11), (10, 6, 12)):
+        for side, (wrist, shoulder, hip) in enumerate(((9, 5, 11), (10, 6, 12))):
             seen = _ramp(float(conf[wrist]), *self.wrist_confidence)
             if not ok_body[wrist] or seen <= 0.0:
                 continue
+            texting = calling = 0.0
             span = kp[hip, 1] - kp[shoulder, 1]
-            if span <= 1e-6:
-                continue
-            r = (kp[hip, 1] - kp[wrist, 1]) / span
-            band = min(_ramp(r, lo - self.raise_softness, lo), 1.0 - _ramp(r, hi, hi + self.raise_softness))
-            centre = abs(kp[wrist, 0] - 0.5 * (shoulders[0] + hips[0])) / torso
-            front = 1.0 - _ramp(centre, self.front_of_torso, 1.6 * self.front_of_torso)
-            texting = max(texting, seen * band * front * (1.0 - self.head_weight + self.head_weight * down))
-            for ear in (3, 4):
-                if ok_body[ear]:
-                    d = math.hypot(*(kp[wrist] - kp[ear])) / torso
-                    calling = max(calling, seen * (1.0 - _ramp(d, self.face_distance, 1.5 * self.face_distance)))
-        return float(np.clip(max(texting, calling), 0.0, 1.0))
+            if span > 1e-6:
+                r = (kp[hip, 1] - kp[wrist, 1]) / span
+                band = min(_ramp(r, lo - self.raise_softness, lo), 1.0 - _ramp(r, hi, hi + self.raise_softness))
+                centre = abs(kp[wrist, 0] - 0.5 * (shoulders[0] + hips[0])) / torso
+                front = 1.0 - _ramp(centre, self.front_of_torso, 1.6 * self.front_of_torso)
+                texting = seen * band * front * (1.0 - self.head_weight + self.head_weight * down)
+                for ear in (3, 4):
+                    if ok_body[ear]:
+                        d = math.hypot(*(kp[wrist] - kp[ear])) / torso
+                        calling = max(calling, seen * (1.0 - _ramp(d, self.face_distance, 1.5 * self.face_distance)))
+            out[side] = max(texting, calling)
+        return np.clip(out, 0.0, 1.0)
+
+
+# -- phone use over time --------------------------------------------------------------------------
+
+
+@dataclass
+class _Track:
+    times: list[float] = field(default_factory=list)
+    cues: list[NDArray[np.float64]] = field(default_factory=list)  # per-wrist geometry (2,)
+    seen: list[NDArray[np.float64]] = field(default_factory=list)  # per-wrist confidence ramp (2,)
+    wrists: list[NDArray[np.float64]] = field(default_factory=list)  # (2, 2) torso-relative, NaN if unseen
+    splits: list[float] = field(default_factory=list)  # wrists on opposite sides of the torso (a stride)
+    torso_px: list[float] = field(default_factory=list)  # torso length in pixels (keypoint noise floor)
+
+
+@dataclass(frozen=True)
+class TemporalPhoneResult:
+    """One person's temporal phone reading: ``phone`` (C_sm), the single-frame ``geometry``, the
+    ``temporal`` score over the window, its ``weight`` in the fusion and the seconds of history."""
+
+    phone: float
+    geometry: float
+    temporal: float
+    weight: float
+    history_s: float
+
+
+class TemporalPhoneModel:
+    """Phone use from the posture over time, per track (see docs/perception.md, "Phone use over time").
+
+    Keeps, per track, the last ``window_s`` seconds of: each wrist's geometry cue
+    (:meth:`PoseGeometryPhoneClassifier.per_wrist`: raised in front of the torso or at the ear, head
+    bent) and each wrist's position relative to the torso (origin the shoulders' midpoint, unit the
+    torso length). Over the window, per wrist w:
+
+    * ``G_w = sum(g_w) / max(sum(s_w), n / 2, 1)``: mean geometry cue over the frames the wrist was
+      seen (``s_w`` its confidence ramp; the phone pose must be *held*, not reached once by a swing;
+      a wrist seen in under half the frames is shrunk);
+    * ``M_w`` = median distance of the wrist from its median position (torso lengths; one misplaced
+      wrist is not a swing); ``still_w = 1 - ramp(M_w, lo, lo + still[1] - still[0])`` with
+      ``lo = max(still[0], noise_px / torso_px)`` (keypoint noise on small people is no swing);
+    * ``S_w = G_w * (1 - motion_weight * (1 - still_w))``.
+
+    Gait, from two signs of arms swinging with the stride: the two wrists' horizontal offsets
+    anti-correlated (Pearson r < 0) while both move, ``swing = ramp(-r, *antiphase) *
+    ramp(min(M_l, M_r), lo, ...)``; and, frame by frame, the wrists on opposite sides of the torso's
+    centre line, both at least ``split[0]``-``split[1]`` torso lengths from it and below the chest
+    (one forward, one back: a stride; it also sees a swing sampled at 1 frame/s, too slowly for the
+    first sign), averaged over the window: ``stride``. ``gait = max(swing, stride)``; temporal score
+    ``S = max(S_l, S_r) * (1 - gait)``. Hands together in front (texting) or one at the ear (calling)
+    are on one side or on the line: no stride. Fusion with the current frame's geometry ``g``:
+
+        C_sm = (1 - w) * g + w * S,   w = max_weight * min(1, history_s / window_s)
+
+    where ``history_s`` is the time from the oldest sample in the window to now: the first frame of a
+    track (or a single image) is geometry only, and the temporal part's weight grows with seconds
+    (not frames) of history, so the result does not depend on the frame rate. A track not seen for
+    ``reset_after_s`` seconds (or whose time goes backwards) restarts; histories never mix tracks;
+    a person without a track ID (-1) or without a time gets geometry only.
+    """
+
+    def __init__(
+        self,
+        geometry: PoseGeometryPhoneClassifier | None = None,
+        *,
+        window_s: float = 2.0,
+        max_weight: float = 0.8,
+        still: tuple[float, float] = (0.1, 0.35),
+        motion_weight: float = 0.6,
+        noise_px: float = 3.0,
+        antiphase: tuple[float, float] = (0.2, 0.6),
+        split: tuple[float, float] = (0.1, 0.25),
+        reset_after_s: float = 3.0,
+        min_wrist_confidence: float = 0.5,
+    ) -> None:
+        if not (window_s > 0 and reset_after_s > 0):
+            raise ValueError("window_s and reset_after_s must be positive seconds")
+        if not 0.0 <= max_weight <= 1.0:
+            raise ValueError(f"max_weight must be in [0, 1], got {max_weight!r}")
+        for name, (lo, hi) in (("still", still), ("antiphase", antiphase), ("split", split)):
+            if not lo < hi:
+                raise ValueError(f"{name} must be (low, high) increasing, got {(lo, hi)!r}")
+        self.geometry = geometry or PoseGeometryPhoneClassifier()
+        self.window_s = float(window_s)
+        self.max_weight = float(max_weight)
+        self.still = still
+        self.motion_weight = float(motion_weight)
+        self.noise_px = float(noise_px)
+        self.antiphase = antiphase
+        self.split = split
+        self.reset_after_s = float(reset_after_s)
+        self.min_wrist_confidence = float(min_wrist_confidence)
+        self._tracks: dict[int, _Track] = {}
+
+    def reset(self) -> None:
+        """Forget every track (a new video)."""
+        self._tracks.clear()
+
+    @property
+    def track_ids(self) -> list[int]:
+        return sorted(self._tracks)
+
+    def _wrists(self, kp: NDArray[np.float64], conf: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.full((2, 2), np.nan)
+        if not np.isfinite(kp[[5, 6, 11, 12]]).all():
+            return out
+        shoulders = kp[[5, 6]].mean(axis=0)
+        torso = float(np.hypot(*(kp[[11, 12]].mean(axis=0) - shoulders)))
+        if torso < 1e-6:
+            return out
+        for side, wrist in enumerate((9, 10)):
+            if np.isfinite(kp[wrist]).all() and conf[wrist] >= self.min_wrist_confidence:
+                out[side] = (kp[wrist] - shoulders) / torso
+        return out
+
+    def _split(self, kp: NDArray[np.float64], wrists: NDArray[np.float64]) -> float:
+        """1 when the wrists lie on opposite sides of the torso's centre line, both far from it."""
+        if not np.isfinite(wrists).all():
+            return 0.0
+        torso_len = float(np.hypot(*(kp[[11, 12]].mean(axis=0) - kp[[5, 6]].mean(axis=0))))
+        centre = 0.5 * (kp[[5, 6], 0].mean() + kp[[11, 12], 0].mean()) - kp[[5, 6], 0].mean()
+        off = wrists[:, 0] - centre / torso_len
+        if off[0] * off[1] >= 0:
+            return 0.0
+        low = _ramp(float(wrists[:, 1].min()), 0.3, 0.5)  # both hands below the chest: a hand at the ear is no stride
+        return _ramp(float(np.abs(off).min()), *self.split) * low
+
+    def update(
+        self,
+        track_id: int | None,
+        time: float | None,
+        keypoints: NDArray[np.float64],
+        confidences: NDArray[np.float64] | None = None,
+    ) -> TemporalPhoneResult:
+        """Add this frame's pose of ``track_id`` at ``time`` (s) and return the fused reading."""
+        kp = np.asarray(keypoints, dtype=float)
+        if kp.shape != (17, 2):
+            raise ValueError(f"keypoints must have shape (17, 2), got {kp.shape}")
+        conf = np.ones(17) if confidences is None else np.asarray(confidences, dtype=float)
+        cue = self.geometry.per_wrist(kp, conf)
+        g = float(cue.max())
+        if track_id is None or track_id < 0 or time is None or not math.isfinite(time):
+            return TemporalPhoneResult(g, g, g, 0.0, 0.0)
+        t = float(time)
+        # tracks unseen for long are dropped (bounded memory; a returning ID starts afresh)
+        for tid in [k for k, tr in self._tracks.items() if t - tr.times[-1] > self.reset_after_s or t < tr.times[-1]]:
+            del self._tracks[tid]
+        tr = self._tracks.setdefault(int(track_id), _Track())
+        if tr.times and t == tr.times[-1]:  # the same frame twice: replace
+            tr.times.pop(), tr.cues.pop(), tr.seen.pop(), tr.wrists.pop(), tr.splits.pop()
+        wrists = self._wrists(kp, conf)
+        tr.times.append(t)
+        tr.cues.append(cue)
+        lo, hi = self.geometry.wrist_confidence
+        tr.seen.append(np.array([_ramp(float(conf[j]), lo, hi) if np.isfinite(kp[j]).all() else 0.0 for j in (9, 10)]))
+        tr.wrists.append(wrists)
+        tr.torso_px.append(float(np.hypot(*(kp[[11, 12]].mean(axis=0) - kp[[5, 6]].mean(axis=0)))))
+        tr.splits.append(self._split(kp, wrists))
+        while tr.times and tr.times[0] < t - self.window_s - 1e-9:
+            tr.times.pop(0), tr.cues.pop(0), tr.seen.pop(0), tr.wrists.pop(0), tr.splits.pop(0)
+        history = t - tr.times[0]
+        if len(tr.times) < 2:
+            return TemporalPhoneResult(g, g, g, 0.0, history)
+        # G_w: mean cue over the frames the wrist was seen (an unseen wrist is no evidence either way)
+        seen = np.sum(tr.seen, axis=0)
+        held = np.sum(tr.cues, axis=0) / np.maximum(seen, max(1.0, 0.5 * len(tr.times)))
+        pos = np.stack(tr.wrists)  # (n, 2 wrists, 2)
+        motion = np.zeros(2)
+        for side in (0, 1):
+            p = pos[:, side]
+            p = p[np.isfinite(p).all(axis=1)]
+            if len(p) >= 2:
+                # robust spread: median distance from the median position (one misplaced wrist is not a swing)
+                motion[side] = float(np.median(np.hypot(*(p - np.median(p, axis=0)).T)))
+        torso_px = float(np.nanmedian(tr.torso_px)) if np.isfinite(tr.torso_px).any() else 0.0
+        lo = max(self.still[0], self.noise_px / torso_px) if torso_px > 1e-6 else self.still[0]
+        still = 1.0 - np.clip((motion - lo) / (self.still[1] - self.still[0]), 0.0, 1.0)
+        gait = 0.0
+        both = np.isfinite(pos[:, :, 0]).all(axis=1)
+        if both.sum() >= 3:
+            xl, xr = pos[both, 0, 0], pos[both, 1, 0]
+            if xl.std() > 1e-9 and xr.std() > 1e-9:
+                r = float(np.corrcoef(xl, xr)[0, 1])
+                gait = _ramp(-r, *self.antiphase) * _ramp(float(motion.min()), *self.still)
+        gait = max(gait, float(np.mean(tr.splits)))
+        s = float((held * (1.0 - self.motion_weight * (1.0 - still))).max()) * (1.0 - gait)
+        w = self.max_weight * min(1.0, history / self.window_s)
+        phone = float(np.clip((1.0 - w) * g + w * s, 0.0, 1.0))
+        return TemporalPhoneResult(phone, g, s, w, history)
+
+
+# -- an image classifier on the person crop (the paper's design) ---------------------------------
+
+
+class CropPhoneClassifier:
+    """A user's image classifier (e.g. EfficientNetV2 fine-tuned on person crops, the paper's
+    approach) as a :class:`PhoneClassifier`: ``(frame, person) -> P(phone)``, NaN where the person is
+    too small (under ``min_height_px``) to judge.
+
+    ``model``: an ``.onnx`` or ``.tflite`` file, read with OpenCV's DNN module (``cv2.dnn``, already a
+    dependency: no onnxruntime or TensorFlow needed). Input: the person's box widened by ``margin``,
+    resized to ``input_size`` (width, height), RGB, ``(x / 255 - mean) / std`` per channel, NCHW
+    (OpenCV's convention for ONNX and TFLite alike; ``layout="nhwc"`` for a ``runner`` that wants
+    channels-last). Output: one logit/probability or
+    two or more class scores; ``phone_index`` picks the phone class (softmax over classes, sigmoid
+    for a single logit unless ``probabilities``). ``runner`` replaces the DNN (tests, other runtimes):
+    a callable from the preprocessed batch (1, C, H, W or 1, H, W, C, float32) to the raw output.
+    """
+
+    def __init__(
+        self,
+        model: str | Path | None = None,
+        *,
+        input_size: tuple[int, int] = (224, 224),
+        mean: tuple[float, float, float] = (0.485, 0.456, 0.406),
+        std: tuple[float, float, float] = (0.229, 0.224, 0.225),
+        layout: str = "nchw",
+        phone_index: int = 1,
+        probabilities: bool = False,
+        margin: float = 0.1,
+        min_height_px: float = 64.0,
+        runner: Callable[[NDArray[np.float32]], NDArray] | None = None,
+    ) -> None:
+        if layout not in ("nchw", "nhwc"):
+            raise ValueError(f"layout must be 'nchw' or 'nhwc', got {layout!r}")
+        self.input_size = (int(input_size[0]), int(input_size[1]))
+        self.mean = np.asarray(mean, dtype=np.float32)
+        self.std = np.asarray(std, dtype=np.float32)
+        self.layout = layout
+        self.phone_index = int(phone_index)
+        self.probabilities = probabilities
+        self.margin = float(margin)
+        self.min_height_px = float(min_height_px)
+        if runner is not None:
+            self._run = runner
+            return
+        if model is None:
+            raise ValueError(
+                "CropPhoneClassifier needs a model file: an image classifier of person crops exported to "
+                "ONNX (.onnx) or TFLite (.tflite), e.g. an EfficientNetV2 fine-tuned on phone / no-phone crops"
+            )
+        path = Path(model)
+        if not path.is_file():
+            raise FileNotFoundError(f"phone crop classifier not found: {path} (an .onnx or .tflite file)")
+        import cv2
+
+        if path.suffix.lower() == ".onnx":
+            net = cv2.dnn.readNetFromONNX(str(path))
+        elif path.suffix.lower() == ".tflite":
+            reader = getattr(cv2.dnn, "readNetFromTFLite", None)
+            if reader is None:
+                raise ValueError(f"this OpenCV ({cv2.__version__}) cannot read TFLite; export the model to ONNX")
+            net = reader(str(path))
+        else:
+            raise ValueError(f"phone crop classifier must be an .onnx or .tflite file, got {path.name}")
+
+        def run(batch: NDArray[np.float32]) -> NDArray:
+            net.setInput(batch)
+            return np.asarray(net.forward())
+
+        self._run = run
+
+    def preprocess(self, frame: NDArray[np.uint8], person: Person) -> NDArray[np.float32] | None:
+        """The model's input for ``person`` (batch of one), or None if the crop is empty."""
+        import cv2
+
+        x1, y1, x2, y2 = person.bbox
+        mx, my = self.margin * (x2 - x1), self.margin * (y2 - y1)
+        h, w = frame.shape[:2]
+        a, b = int(max(0, x1 - mx)), int(max(0, y1 - my))
+        c, d = int(min(w, x2 + mx)), int(min(h, y2 + my))
+        if c - a < 2 or d - b < 2:
+            return None
+        crop = cv2.resize(frame[b:d, a:c], self.input_size, interpolation=cv2.INTER_AREA)
+        x = (crop.astype(np.float32) / 255.0 - self.mean) / self.std
+        x = x[None] if self.layout == "nhwc" else x.transpose(2, 0, 1)[None]
+        return np.ascontiguousarray(x, dtype=np.float32)
+
+    def __call__(self, frame: NDArray[np.uint8] | None, person: Person) -> float:
+        if frame is None or person.bbox[3] - person.bbox[1] < self.min_height_px:
+            return math.nan
+        x = self.preprocess(frame, person)
+        if x is None:
+            return math.nan
+        out = np.asarray(self._run(x), dtype=float).reshape(-1)
+        if out.size == 1:
+            p = float(out[0]) if self.probabilities else 1.0 / (1.0 + math.exp(-float(out[0])))
+        elif self.probabilities:
+            p = float(out[self.phone_index] / max(out.sum(), 1e-12))
+        else:
+            e = np.exp(out - out.max())
+            p = float(e[self.phone_index] / e.sum())
+        return float(np.clip(p, 0.0, 1.0))
+
+
+def fuse_crop(
+    pose_phone: float,
+    crop_phone: float,
+    height_px: float,
+    ramp_px: tuple[float, float] = (64, 200),
+    max_weight: float = 0.7,
+) -> float:
+    """Pose-based C_sm fused with a crop classifier's P(phone) by confidence: the crop's weight
+    ``max_weight * ramp(height_px, *ramp_px)`` grows with the person's height; NaN crop: pose only."""
+    if math.isnan(crop_phone):
+        return pose_phone
+    if math.isnan(pose_phone):
+        return crop_phone
+    w = max_weight * _ramp(float(height_px), *ramp_px)
+    return float((1.0 - w) * pose_phone + w * crop_phone)

@@ -95,17 +95,19 @@ class PerceptionPipeline:
         self.phone = next((c.classifier for c in self.cues if isinstance(c, PhoneUseCue)), None)
         self.last_timing: dict[str, float] = {}
 
-    def __call__(self, frame: NDArray[np.uint8]) -> list[TrackedPerson]:
+    def __call__(self, frame: NDArray[np.uint8], time: float | None = None) -> list[TrackedPerson]:
+        """Tracked people of ``frame``; ``time`` (seconds) lets temporal cues (phone use over time)
+        follow each track; without it they judge the frame alone."""
         frame = check_frame(frame)
         t0 = _time.perf_counter()
         people = self.backend(frame)
         t1 = _time.perf_counter()
-        values = {c.name: run_cue(c, frame, people) for c in self.cues} if people else {}
-        t2 = _time.perf_counter()
         ids = self.tracker.update(people)
+        t2 = _time.perf_counter()
+        values = {c.name: run_cue(c, frame, people, track_ids=ids, time=time) for c in self.cues} if people else {}
         t3 = _time.perf_counter()
         self.last_timing = dict(getattr(self.backend, "last_timing", {}) or {"pose": t1 - t0})
-        self.last_timing.update(traits=t2 - t1, tracking=t3 - t2)
+        self.last_timing.update(traits=t3 - t2, tracking=t2 - t1)
         nan = [math.nan] * len(people)
         eye, phone = values.get(EYE_CONTACT, nan), values.get(SMARTPHONE, nan)
         others = [name for name in values if name not in (EYE_CONTACT, SMARTPHONE)]
@@ -185,7 +187,7 @@ def estimate(
             result.error = item.error or "unreadable frame"
         else:
             try:
-                result.people = pipeline(item.frame)
+                result.people = pipeline(item.frame, time=t)
                 estimator.update(pipeline.observations(result.people, t), time=t)
                 result.records = [_record(item.name, tp, estimator, sequence) for tp in result.people]
                 result.timing = dict(pipeline.last_timing)

@@ -295,7 +295,7 @@ class DriveSimulation:
         """Capture a frame now, perceive it and update the trusts of the pedestrians observed."""
         sc = self.scenario
         cam, bodies = self.world.camera_view()
-        sensed, image, false_pos, timing = self.sensor.sense(cam, bodies)
+        sensed, image, false_pos, timing = self.sensor.sense(cam, bodies, self.time)
         if image is None:
             image = self.world.frame_image()
         true_pos, true_vel = self.pedestrians()

@@ -23,6 +23,7 @@ observed has trust 0 (gamma = gamma_ini, the safe default).
 
 from __future__ import annotations
 
+import inspect
 import math
 import time as _time
 from collections.abc import Sequence
@@ -35,7 +36,7 @@ from numpy.typing import NDArray
 from trustnav.geometry.camera import NEAR, CameraPose
 from trustnav.perception.confidence import HeadConfidenceParams
 from trustnav.perception.looking import LookingModel, normalise_keypoints
-from trustnav.perception.phone import PoseGeometryPhoneClassifier, phone_label
+from trustnav.perception.phone import PoseGeometryPhoneClassifier, TemporalPhoneModel, phone_label
 from trustnav.perception.types import Person, box_iou
 from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.world import SensingSpec, street_of
@@ -224,6 +225,8 @@ class KeypointSensor:
         self.rng = rng
         self.eye_model = eye_model or looking_model()
         self.phone = phone or PoseGeometryPhoneClassifier()
+        # phone use from the posture over time, per pedestrian (the stand-in for image tracking)
+        self.temporal_phone = TemporalPhoneModel(self.phone)
 
     def person(self, camera: CameraPose, skeleton: Skeleton) -> Person | None:
         """The synthetic detection of one body, or None when it is not detectable or missed."""
@@ -257,8 +260,9 @@ class KeypointSensor:
         return Person(bbox=box, keypoints=kp, confidences=np.clip(conf, 0.0, 1.0), score=0.9)
 
     def sense(
-        self, camera: CameraPose, bodies: Sequence[tuple[Skeleton, Appearance]]
+        self, camera: CameraPose, bodies: Sequence[tuple[Skeleton, Appearance]], time: float | None = None
     ) -> tuple[list[SensedPerson], NDArray[np.uint8] | None, int, dict[str, float]]:
+        """The frame captured at ``time`` (s; None: phone use from this frame's geometry only)."""
         t0 = _time.perf_counter()
         found = []
         for j, (sk, _) in enumerate(bodies):
@@ -271,7 +275,8 @@ class KeypointSensor:
             inputs = np.stack([normalise_keypoints(p.keypoints, p.confidences, w) for _, p in found])
             eye = self.eye_model.predict(inputs)
             for (j, p), e in zip(found, eye, strict=True):
-                out.append(SensedPerson(j, j, p, float(e), float(self.phone(None, p))))
+                phone = self.temporal_phone.update(j, time, p.keypoints, p.confidences).phone
+                out.append(SensedPerson(j, j, p, float(e), float(phone)))
         return out, None, 0, {"keypoints": _time.perf_counter() - t0}
 
 
@@ -284,16 +289,22 @@ class RenderSensor:
         self.renderer = renderer
         self.pipeline = pipeline
         self.min_iou = min_iou
+        # a pipeline that takes the frame's time follows temporal cues (phone use over time)
+        try:
+            self._timed = "time" in inspect.signature(pipeline).parameters
+        except (TypeError, ValueError):
+            self._timed = False
 
     def sense(
-        self, camera: CameraPose, bodies: Sequence[tuple[Skeleton, Appearance]]
+        self, camera: CameraPose, bodies: Sequence[tuple[Skeleton, Appearance]], time: float | None = None
     ) -> tuple[list[SensedPerson], NDArray[np.uint8] | None, int, dict[str, float]]:
+        """Render the frame captured at ``time`` (s) and perceive it."""
         from scipy.optimize import linear_sum_assignment
 
         t0 = _time.perf_counter()
         frame = self.renderer.render(camera, list(bodies))
         t1 = _time.perf_counter()
-        people = self.pipeline(frame)
+        people = self.pipeline(frame, time=time) if self._timed and time is not None else self.pipeline(frame)
         t2 = _time.perf_counter()
         # the true projected boxes label each detection for scoring (and for the "true"-state mode);
         # in the perceived-state mode nothing downstream uses the label
