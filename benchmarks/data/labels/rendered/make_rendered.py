@@ -1,0 +1,79 @@
+"""Regenerates the rendered labelled set: Case I/II pedestrians drawn by the drive's PyBullet renderer.
+
+20 frames (seed 0) of case-1's camera and street, each with three pedestrians 7-13 m ahead:
+the attentive pose (body facing the camera +- 20 deg, head turned to it: eye contact, no phone),
+the distracted pose (phone held in both hands, head bent over it: phone, no eye contact) and the
+walking pose in profile (body yaw 90 deg +- 15: no phone, no eye contact). Boxes are the projected
+body points (``trustnav.sim.driving.sensing.projected_box``). The frames (~6 MB) are not stored:
+``benchmarks/trust_eval.py`` regenerates them into a cache folder and checks the boxes against
+``../rendered.json``, the labels this script wrote.
+
+    python benchmarks/data/labels/rendered/make_rendered.py OUT_DIR   # frames + OUT_DIR/labels.json
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from trustnav.sim.driving import body
+from trustnav.sim.driving.render import PyBulletRenderer
+from trustnav.sim.driving.sensing import projected_box
+from trustnav.sim.driving.world import load_drive_scenario, street_of
+
+HERE = Path(__file__).resolve().parent
+PED_Y = 101.0  # case-1's pedestrian line (m)
+ROLES = (  # pose, appearance, phone, eye contact, body yaw offset from facing the camera (deg)
+    ("attentive", body.ATTENTIVE_LOOK, False, True, 0.0),
+    ("distracted", body.DISTRACTED_LOOK, True, False, 0.0),
+    ("walking", body.WALKER_LOOK, False, False, 90.0),
+)
+
+
+def generate(out: Path, n: int = 20, seed: int = 0) -> dict:
+    """Renders the frames into ``out``; returns their labels (file name -> people)."""
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    scenario = load_drive_scenario("case-1")
+    street = street_of(scenario)
+    renderer = PyBulletRenderer(street)
+    frames = {}
+    try:
+        for k in range(n):
+            yaw = -0.5 * math.pi
+            ego = np.array([float(street.start[0]) + rng.uniform(-0.4, 0.4), PED_Y + 12.0 + scenario.camera.forward])
+            camera = scenario.camera.pose(ego, yaw)
+            fwd, right = np.array([0.0, -1.0]), camera.right[:2]
+            laterals = rng.permutation([-2.6, 0.0, 2.6]) + rng.uniform(-0.3, 0.3, 3)
+            bodies, people = [], []
+            for j, (pose, look, phone, eye, yaw_off) in enumerate(ROLES):
+                dist = rng.uniform(7.0, 13.0)
+                xy = camera.position[:2] + dist * fwd + laterals[j] * right
+                ground = float(street.ground_height(xy))
+                # body facing the camera: chest towards +y (the camera looks along -y)
+                face = 0.5 * math.pi + math.radians(yaw_off * rng.choice([-1, 1]) + rng.uniform(-15, 15))
+                target = camera.position if pose == "attentive" else None
+                sk = body.pedestrian_skeleton(pose, (xy[0], xy[1], ground), face, float(rng.uniform(0, 10)), look,
+                                              look_at=target, phase=float(rng.uniform(0, 1)))  # fmt: skip
+                box = projected_box(camera, sk)
+                bodies.append((sk, look))
+                people.append({"id": pose, "bbox": [round(float(v), 1) for v in box], "phone": phone,
+                               "eye_contact": eye, "distance_m": round(float(dist), 2)})  # fmt: skip
+            rgb = renderer.render(camera, bodies)
+            name = f"frame_{k:02d}.png"
+            Image.fromarray(rgb).save(out / name)
+            frames[name] = {"people": people, "ignore": []}
+    finally:
+        renderer.close()
+    return frames
+
+
+if __name__ == "__main__":
+    import sys
+
+    dest = Path(sys.argv[1] if len(sys.argv) > 1 else "rendered_frames")
+    (dest / "labels.json").write_text(json.dumps(generate(dest), indent=1))

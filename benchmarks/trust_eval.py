@@ -1,0 +1,327 @@
+"""The project's labelled evaluation: detection, tracking, phone use and eye contact against hand labels.
+
+Labels: ``benchmarks/data/labels/*.json`` (one file per set; how they were decided is in each file's
+``_doc`` and in docs/perception.md, "Labelled evaluation"). Each set runs through the pipeline exactly
+as ``trustnav estimate INPUTS --out DIR`` does (the CLI itself, default settings), and its
+``tracks.json`` is compared with the labels of every labelled frame:
+
+- detections are matched to labelled people by IoU >= 0.5 (Hungarian assignment);
+- recall: labelled (clearly visible) people matched;
+- duplicate boxes: unmatched detections lying on a matched person (IoU >= 0.3 with, or >= 70 % of
+  their area inside, that person's box);
+- false boxes: the other unmatched detections, unless >= 50 % of their area lies in an "ignore region"
+  (a person present but too small, cut off or hidden to be labelled) or on a labelled person;
+- ID switches: changes of track ID along each labelled person's matched frames (sets of unrelated
+  images, "independent_frames", count none);
+- phone use and eye contact: on matched people whose label is true/false (null = undecidable, skipped),
+  the detection's ``phone`` / ``eye_contact`` >= 0.5 against the label: TP, FP, FN, TN, precision,
+  recall, F1. A missing score (null) counts as a negative prediction.
+
+    python benchmarks/trust_eval.py                      # all sets, ~2 min on 2 cores
+    python benchmarks/trust_eval.py --set phone_a --set street
+    python benchmarks/trust_eval.py --json /tmp/trust_eval.json
+    python benchmarks/trust_eval.py --estimate-arg=--face     # a non-default option of estimate
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import itertools
+import json
+import sys
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+LABELS = ROOT / "benchmarks" / "data" / "labels"
+SETS = ("walk_a", "phone_a", "street", "rendered")
+MATCH_IOU = 0.5
+DUPLICATE_IOU = 0.3
+DUPLICATE_INSIDE = 0.7
+IGNORE_INSIDE = 0.5
+THRESHOLD = 0.5
+
+
+# ---------------------------------------------------------------- geometry and matching
+
+
+def iou(a: Sequence[float], b: Sequence[float]) -> float:
+    """Intersection over union of two [x1, y1, x2, y2] boxes."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0 or h <= 0:
+        return 0.0
+    inter = w * h
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def inside_fraction(a: Sequence[float], region: Sequence[float]) -> float:
+    """Share of box ``a``'s area that lies inside ``region``."""
+    w = min(a[2], region[2]) - max(a[0], region[0])
+    h = min(a[3], region[3]) - max(a[1], region[1])
+    area = (a[2] - a[0]) * (a[3] - a[1])
+    if w <= 0 or h <= 0 or area <= 0:
+        return 0.0
+    return float(w * h / area)
+
+
+def match(
+    dets: Sequence[Sequence[float]], labels: Sequence[Sequence[float]], thr: float = MATCH_IOU
+) -> list[tuple[int, int]]:
+    """(detection index, label index) pairs of the Hungarian assignment maximising total IoU, kept
+    where IoU >= ``thr``."""
+    if not len(dets) or not len(labels):
+        return []
+    from scipy.optimize import linear_sum_assignment
+
+    m = np.array([[iou(d, g) for g in labels] for d in dets])
+    rows, cols = linear_sum_assignment(-m)
+    return sorted((int(r), int(c)) for r, c in zip(rows, cols, strict=True) if m[r, c] >= thr)
+
+
+def classify_frame(
+    dets: Sequence[Sequence[float]],
+    people: Sequence[Mapping[str, Any]],
+    ignore: Sequence[Sequence[float]] = (),
+) -> dict[str, Any]:
+    """One frame: matches {label index: detection index}, duplicate, false and ignored detection indices."""
+    boxes = [p["bbox"] for p in people]
+    pairs = match(dets, boxes)
+    matched = {g: d for d, g in pairs}
+    used = {d for d, _ in pairs}
+    dup, false, ignored = [], [], []
+    for d, box in enumerate(dets):
+        if d in used:
+            continue
+        on_matched = any(
+            iou(box, boxes[g]) >= DUPLICATE_IOU or inside_fraction(box, boxes[g]) >= DUPLICATE_INSIDE for g in matched
+        )
+        if on_matched:
+            dup.append(d)
+        elif any(inside_fraction(box, r) >= IGNORE_INSIDE for r in [*ignore, *boxes]):
+            ignored.append(d)
+        else:
+            false.append(d)
+    return {"matched": matched, "duplicate": dup, "false": false, "ignored": ignored}
+
+
+def id_switches(tracks: Iterable[int | None]) -> int:
+    """Changes of track ID along one labelled person's frames (frames where it was missed skipped)."""
+    seen = [t for t in tracks if t is not None]
+    return sum(a != b for a, b in itertools.pairwise(seen))
+
+
+def binary_scores(pairs: Iterable[tuple[bool | None, float | None]], thr: float = THRESHOLD) -> dict[str, Any]:
+    """(label, score) pairs -> TP/FP/FN/TN, precision, recall, F1; null labels skipped, null scores negative."""
+    tp = fp = fn = tn = 0
+    for truth, score in pairs:
+        if truth is None:
+            continue
+        pred = score is not None and score >= thr
+        if truth and pred:
+            tp += 1
+        elif truth:
+            fn += 1
+        elif pred:
+            fp += 1
+        else:
+            tn += 1
+    precision = tp / (tp + fp) if tp + fp else None
+    recall = tp / (tp + fn) if tp + fn else None
+    f1 = 2 * precision * recall / (precision + recall) if precision and recall else (0.0 if tp + fn else None)
+    return {"tp": tp, "fp": fp, "fn": fn, "tn": tn, "precision": precision, "recall": recall, "f1": f1}
+
+
+def evaluate(labels: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Compare ``tracks.json`` records with one set's labels (only the labelled frames count)."""
+    by_frame: dict[str, list[Mapping[str, Any]]] = {}
+    for r in records:
+        by_frame.setdefault(r["frame"], []).append(r)
+    people = found = dup = false = ignored = 0
+    tracks: dict[str, list[int | None]] = {}
+    phone, eye, misses, false_boxes = [], [], [], []
+    for name, frame in labels["frames"].items():
+        recs = by_frame.get(name, [])
+        labelled = frame["people"]
+        res = classify_frame([r["bbox"] for r in recs], labelled, frame.get("ignore", []))
+        people += len(labelled)
+        found += len(res["matched"])
+        dup += len(res["duplicate"])
+        false += len(res["false"])
+        ignored += len(res["ignored"])
+        false_boxes += [(name, [round(v) for v in recs[d]["bbox"]]) for d in res["false"]]
+        for g, p in enumerate(labelled):
+            d = res["matched"].get(g)
+            key = f"{name}/{p['id']}" if labels.get("independent_frames") else str(p["id"])
+            tracks.setdefault(key, []).append(None if d is None else recs[d]["track_id"])
+            if d is None:
+                misses.append((name, str(p["id"])))
+                continue
+            phone.append((p.get("phone"), recs[d].get("phone")))
+            eye.append((p.get("eye_contact"), recs[d].get("eye_contact")))
+    return {
+        "frames": len(labels["frames"]),
+        "people": people,
+        "found": found,
+        "recall": found / people if people else None,
+        "detections": sum(len(by_frame.get(name, [])) for name in labels["frames"]),  # on labelled frames
+        "duplicates": dup,
+        "false_boxes": false,
+        "ignored_boxes": ignored,
+        "id_switches": sum(id_switches(t) for t in tracks.values()),
+        "persons": len(tracks),
+        "phone": binary_scores(phone),
+        "eye_contact": binary_scores(eye),
+        "missed": misses,
+        "false_list": false_boxes,
+    }
+
+
+# ---------------------------------------------------------------- labels and inputs
+
+
+def load_labels(name: str) -> dict[str, Any]:
+    return json.loads((LABELS / f"{name}.json").read_text())
+
+
+def inputs_of(name: str, labels: Mapping[str, Any], cache: Path) -> list[Path]:
+    """The files or folder ``trustnav estimate`` is given for a set (the rendered set is regenerated)."""
+    if name == "rendered":
+        folder = render_frames(labels, cache / "rendered")
+        return [folder / f for f in labels["frames"]]  # unrelated scenes: one sequence each
+    base = (ROOT / labels["source"]).resolve()
+    if base.is_dir() and labels.get("input") == "folder":
+        return [base]
+    return [base / f for f in labels["frames"]]
+
+
+def render_frames(labels: Mapping[str, Any], out: Path) -> Path:
+    """Regenerates the rendered frames (recipe and seed in labels['recipe']) and checks their boxes."""
+    import importlib.util
+
+    path = LABELS / "rendered" / "make_rendered.py"
+    spec = importlib.util.spec_from_file_location("make_rendered", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    with contextlib.redirect_stdout(io.StringIO()):
+        made = mod.generate(out, n=labels["recipe"]["frames"], seed=labels["recipe"]["seed"])
+    for name, frame in labels["frames"].items():
+        for a, b in zip(frame["people"], made[name]["people"], strict=True):
+            if a["id"] != b["id"] or max(abs(u - v) for u, v in zip(a["bbox"], b["bbox"], strict=True)) > 1.0:
+                raise SystemExit(f"regenerated {name} differs from the labels ({a['id']}): renderer changed?")
+    return out
+
+
+def run_estimate(inputs: Sequence[Path], out: Path, extra: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """``trustnav estimate INPUTS --out OUT --no-images [EXTRA]`` through the CLI; its tracks.json records."""
+    from trustnav.cli import main as cli
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        cli(["estimate", *map(str, inputs), "--out", str(out), "--no-images", *extra])
+    return json.loads((out / "tracks.json").read_text())
+
+
+# ---------------------------------------------------------------- printing
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def _trait(s: Mapping[str, Any]) -> str:
+    return (f"P {_pct(s['precision'])} R {_pct(s['recall'])} F1 {_pct(s['f1'])} "
+            f"(TP {s['tp']} FP {s['fp']} FN {s['fn']} TN {s['tn']})")  # fmt: skip
+
+
+def total(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    keys = ("frames", "people", "found", "detections", "duplicates", "false_boxes", "ignored_boxes", "id_switches",
+            "persons")  # fmt: skip
+    out: dict[str, Any] = {k: sum(r[k] for r in results.values()) for k in keys}
+    out["recall"] = out["found"] / out["people"] if out["people"] else None
+    for trait in ("phone", "eye_contact"):
+        c = {k: sum(r[trait][k] for r in results.values()) for k in ("tp", "fp", "fn", "tn")}
+        pairs = [(True, 1.0)] * c["tp"] + [(False, 1.0)] * c["fp"] + [(True, 0.0)] * c["fn"] + [(False, 0.0)] * c["tn"]
+        out[trait] = binary_scores(pairs)
+    return out
+
+
+def print_table(results: Mapping[str, Mapping[str, Any]], tuned: Mapping[str, str]) -> None:
+    head = ("set", "frames", "people", "recall", "false", "dup", "IDsw", "phone P/R/F1", "eye P/R/F1")
+    rows = []
+    for name, r in [*results.items(), *([("all", total(results))] if len(results) > 1 else [])]:
+        p, e = r["phone"], r["eye_contact"]
+        rows.append((name, str(r["frames"]), str(r["people"]), f"{r['found']}/{r['people']} {_pct(r['recall'])}",
+                     str(r["false_boxes"]), str(r["duplicates"]), str(r["id_switches"]),
+                     f"{_pct(p['precision'])}/{_pct(p['recall'])}/{_pct(p['f1'])}",
+                     f"{_pct(e['precision'])}/{_pct(e['recall'])}/{_pct(e['f1'])}"))  # fmt: skip
+    print("| " + " | ".join(head) + " |")
+    print("|" + "|".join("---" for _ in head) + "|")
+    for row in rows:
+        print("| " + " | ".join(row) + " |")
+    print()
+    for name, r in results.items():
+        print(f"- {name}: phone {_trait(r['phone'])}; eye contact {_trait(r['eye_contact'])}")
+        missed = ", ".join(f"{who} ({frame})" for frame, who in r["missed"][:8]) or "none"
+        print(f"  {r['detections']} detections on the labelled frames, {r['ignored_boxes']} in ignore regions; "
+              f"false boxes at: {r['false_list'][:6] or 'none'}; missed {len(r['missed'])}: {missed}")  # fmt: skip
+    print()
+    for name in results:
+        print(f"- {name}: {tuned[name]}")
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="trust_eval.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"Labels in {LABELS}; real frames read from {SHARED}.",
+    )
+    parser.add_argument(
+        "--set", action="append", choices=SETS, dest="sets", help="a set to run (repeatable; default all)"
+    )
+    parser.add_argument("--json", type=Path, help="write the results to this file")
+    parser.add_argument(
+        "--estimate-arg",
+        action="append",
+        default=[],
+        dest="extra",
+        metavar="ARG",
+        help="extra argument for trustnav estimate, e.g. --estimate-arg=--face (repeatable; default none)",
+    )
+    parser.add_argument("--keep", type=Path, help="keep the estimate outputs (and rendered frames) in this folder")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    sets = args.sets or list(SETS)
+    results, tuned = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.keep or Path(tmp)
+        for name in sets:
+            labels = load_labels(name)
+            if labels.get("needs_shared", True) and not SHARED.is_dir():
+                raise SystemExit(f"set {name} needs the shared data at {SHARED}")
+            print(f"{name}: running trustnav estimate ...", file=sys.stderr)
+            records = run_estimate(inputs_of(name, labels, work), work / f"estimate_{name}", args.extra)
+            results[name] = evaluate(labels, records)
+            tuned[name] = labels["tuned_on"]
+    print_table(results, tuned)
+    if args.json:
+        out = {"sets": results, "all": total(results), "tuned_on": tuned,
+               "settings": {"match_iou": MATCH_IOU, "threshold": THRESHOLD, "estimate_args": args.extra}}  # fmt: skip
+        args.json.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,128 @@
+"""The project's labelled set (benchmarks/data/labels) and the metrics of benchmarks/trust_eval.py.
+
+Fast: reads the label files (image sizes from the PNG/JPEG headers when ../shared is present) and
+checks the matching and metric functions on a tiny hand-made example; the pipeline is not run.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LABELS = ROOT / "benchmarks" / "data" / "labels"
+
+
+def _load_script():
+    spec = importlib.util.spec_from_file_location("trust_eval", ROOT / "benchmarks" / "trust_eval.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+te = _load_script()
+
+
+@pytest.mark.parametrize("name", te.SETS)
+def test_label_files_load_and_are_self_consistent(name):
+    labels = json.loads((LABELS / f"{name}.json").read_text())
+    assert labels["set"] == name and labels["_doc"] and labels["tuned_on"] and labels["frames"]
+    assert ("not tuned on" in labels["tuned_on"]) == (name == "rendered")
+    people = 0
+    for frame, entry in labels["frames"].items():
+        w, h = entry.get("image_size", labels.get("image_size"))
+        ids = [p["id"] for p in entry["people"]]
+        assert len(ids) == len(set(ids)), (name, frame, "ids not unique")
+        for p in entry["people"]:
+            x1, y1, x2, y2 = p["bbox"]
+            assert 0 <= x1 < x2 <= w and 0 <= y1 < y2 <= h, (name, frame, p["id"], p["bbox"])
+            assert p["phone"] in (True, False, None) and p["eye_contact"] in (True, False, None), (name, frame, p)
+            vis = p["visible"]
+            assert vis["in_view"] is True and vis["occluded"] in (True, False), (name, frame, p["id"])
+            assert vis["height_px"] == pytest.approx(y2 - y1, abs=1.0)
+            assert vis["height_px"] >= labels.get("min_height_px", 60), (name, frame, p["id"])
+        for r in entry.get("ignore", []):
+            assert len(r) == 4 and r[0] < r[2] and r[1] < r[3], (name, frame, r)
+        people += len(entry["people"])
+    assert people >= 10
+
+
+def test_label_frames_exist_in_the_shared_data():
+    for name in ("walk_a", "phone_a", "street"):
+        labels = json.loads((LABELS / f"{name}.json").read_text())
+        base = (ROOT / labels["source"]).resolve()
+        if not base.is_dir():
+            pytest.skip("needs ../shared")
+        from PIL import Image
+
+        for frame, entry in labels["frames"].items():
+            with Image.open(base / frame) as im:
+                assert list(im.size) == list(entry.get("image_size", labels.get("image_size"))), (name, frame)
+
+
+def test_iou_and_hungarian_matching():
+    assert te.iou([0, 0, 10, 10], [0, 0, 10, 10]) == 1.0
+    assert te.iou([0, 0, 10, 10], [5, 0, 15, 10]) == pytest.approx(50 / 150)
+    assert te.iou([0, 0, 10, 10], [20, 20, 30, 30]) == 0.0
+    labels = [[10, 0, 20, 10], [13, 0, 23, 10]]
+    dets = [[11, 0, 21, 10], [8, 0, 18, 10]]  # det 0 fits label 0 best (0.82), but only det 0 reaches label 1
+    assert te.iou(dets[0], labels[0]) > te.iou(dets[0], labels[1]) > 0.5 > te.iou(dets[1], labels[1])
+    assert te.match(dets, labels) == [(0, 1), (1, 0)]  # greedy would match det 0 -> label 0 and lose one
+    assert te.match([[50, 50, 60, 60]], labels) == []
+    assert te.match([], labels) == [] and te.match(dets, []) == []
+
+
+def test_frame_classification_counts_duplicates_false_and_ignored():
+    people = [{"id": "a", "bbox": [0, 0, 10, 20]}, {"id": "b", "bbox": [100, 0, 110, 20]}]
+    dets = [
+        [0, 0, 10, 20],  # a
+        [1, 1, 9, 12],  # inside a: duplicate
+        [200, 0, 210, 20],  # in the ignore region
+        [300, 0, 310, 20],  # false
+    ]
+    res = te.classify_frame(dets, people, ignore=[[190, 0, 230, 30]])
+    assert res["matched"] == {0: 0}
+    assert res["duplicate"] == [1] and res["ignored"] == [2] and res["false"] == [3]
+
+
+def test_id_switches_and_binary_scores():
+    assert te.id_switches([1, 1, None, 1, 2, 2, 1]) == 2
+    assert te.id_switches([None, None]) == 0
+    s = te.binary_scores([(True, 0.9), (True, 0.2), (False, 0.7), (False, 0.1), (None, 0.9), (True, None)])
+    assert (s["tp"], s["fp"], s["fn"], s["tn"]) == (1, 1, 2, 1)
+    assert s["precision"] == pytest.approx(0.5) and s["recall"] == pytest.approx(1 / 3)
+    assert s["f1"] == pytest.approx(0.4)
+    empty = te.binary_scores([(False, 0.1)])
+    assert empty["precision"] is None and empty["recall"] is None and empty["f1"] is None
+
+
+def test_evaluate_on_a_tiny_sequence():
+    labels = {
+        "frames": {
+            "f0": {"people": [{"id": "p", "bbox": [0, 0, 10, 20], "phone": True, "eye_contact": None},
+                              {"id": "q", "bbox": [50, 0, 60, 20], "phone": False, "eye_contact": True}],
+                   "ignore": []},
+            "f1": {"people": [{"id": "p", "bbox": [2, 0, 12, 20], "phone": True, "eye_contact": False}], "ignore": []},
+        }
+    }  # fmt: skip
+    records = [
+        {"frame": "f0", "track_id": 1, "bbox": [0, 0, 10, 20], "phone": 0.8, "eye_contact": 0.1},
+        {"frame": "f0", "track_id": 2, "bbox": [50, 0, 60, 20], "phone": 0.6, "eye_contact": 0.9},
+        {"frame": "f0", "track_id": 3, "bbox": [400, 0, 410, 20], "phone": 0.0, "eye_contact": 0.0},
+        {"frame": "f1", "track_id": 4, "bbox": [2, 0, 12, 20], "phone": 0.3, "eye_contact": 0.6},
+    ]
+    r = te.evaluate(labels, records)
+    assert (r["people"], r["found"], r["false_boxes"], r["duplicates"], r["id_switches"]) == (3, 3, 1, 0, 1)
+    assert (r["phone"]["tp"], r["phone"]["fp"], r["phone"]["fn"], r["phone"]["tn"]) == (1, 1, 1, 0)
+    assert (r["eye_contact"]["tp"], r["eye_contact"]["fp"], r["eye_contact"]["fn"]) == (1, 1, 0)
+    assert te.total({"a": r, "b": r})["people"] == 6
+
+
+def test_help_runs():
+    with pytest.raises(SystemExit) as exc:
+        te.parse_args(["--help"])
+    assert exc.value.code == 0
