@@ -10,6 +10,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,3 +127,19 @@ def test_help_runs():
     with pytest.raises(SystemExit) as exc:
         te.parse_args(["--help"])
     assert exc.value.code == 0
+
+
+def test_mp4_round_trip_reports_psnr_and_maps_frames_back(tmp_path):
+    import cv2
+
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    rng = np.random.default_rng(1)
+    base = cv2.GaussianBlur(rng.integers(0, 255, (96, 128, 3), dtype=np.uint8), (0, 0), 3)
+    for i in range(4):
+        cv2.imwrite(str(folder / f"f_{i:03d}.png"), np.roll(base, 3 * i, axis=1))
+    video, psnr = te.mp4_of(folder, tmp_path / "seq.mp4")
+    assert video.is_file() and 25.0 < psnr < 99.0
+    recs = [{"frame": "seq.mp4#2", "track_id": 0, "bbox": [1, 2, 3, 4]}, {"frame": "seq.mp4#0", "track_id": 1}]
+    mapped = te.video_records(recs, folder)
+    assert [r["frame"] for r in mapped] == ["f_002.png", "f_000.png"] and mapped[0]["bbox"] == [1, 2, 3, 4]

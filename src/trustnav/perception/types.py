@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,14 +38,14 @@ class Person:
 
     bbox: [x1, y1, x2, y2]; keypoints: (17, 2) COCO order (NaN where a backend has none);
     confidences: (17,) in [0, 1], low for keypoints the backend believes occluded;
-    score: detection score in [0, 1]; extra: backend-specific arrays (e.g. BlazePose's 33 landmarks).
+    score: detection score in [0, 1]; extra: backend-specific data (e.g. BlazePose's 33 landmarks).
     """
 
     bbox: NDArray[np.float64]
     keypoints: NDArray[np.float64]
     confidences: NDArray[np.float64]
     score: float
-    extra: dict[str, NDArray[np.float64]] = field(default_factory=dict, compare=False)
+    extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         box = np.asarray(self.bbox, dtype=float)
