@@ -2,12 +2,15 @@
 
     python examples/gym_drive.py [--scenario case-1|case-2] [--sensing keypoints|render] [--out DIR]
 
-The controller is deliberately simple: it steers back to the lane with a proportional law and
-sets its speed from the trust that perception gives each pedestrian ahead: it slows down near a
-pedestrian it does not trust yet. The pedestrians it sees are the camera's (positions estimated
-from the image, each with a covariance; ``present`` marks the filled slots). It prints the
-closest approach to each pedestrian and, with --out, saves the top view of the last step and the
-figures of trustnav.viz.drive_plots.
+The controller is deliberately simple: it steers back to the lane with a proportional law and sets
+its speed from the trust that perception gives each pedestrian ahead: it slows down near a
+pedestrian it does not trust yet, and stops at the goal (the environment counts the goal only at <=
+``goal_max_speed``, 2 m/s by default). Its (steer rad, accel m/s^2) are mapped to the environment's
+normalised actions in [-1, 1] (docs/drive.md). The episode ends at the goal, on a collision, off the
+road or at the time limit; ``info["reason"]`` says which. The pedestrians it sees are the camera's
+(positions estimated from the image, each with a covariance; ``present`` marks the filled slots). It
+prints the closest approach to each pedestrian and, with --out, saves the top view of the last step
+and the figures of trustnav.viz.drive_plots.
 """
 
 from __future__ import annotations
@@ -19,11 +22,18 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-import trustnav.sim.driving.gym_env  # noqa: F401  (registers "trustnav/Drive-v0")
+import trustnav  # noqa: F401  (registers "trustnav/Drive-v0")
 
 
-def user_controller(obs: dict, lane_start: np.ndarray, lane_goal: np.ndarray) -> np.ndarray:
-    """(steer, accel) from the observation: lane keeping + trust-dependent speed."""
+def normalised(steer: float, accel: float, steer_max: float, accel_min: float, accel_max: float) -> np.ndarray:
+    """(steer rad, accel m/s^2) as the environment's action: steer / steer_max, accel / accel_max
+    when speeding up, accel / |accel_min| when braking; each clipped to [-1, 1]."""
+    a = accel / accel_max if accel >= 0 else accel / -accel_min
+    return np.clip(np.array([steer / steer_max, a], dtype=np.float32), -1.0, 1.0)
+
+
+def user_controller(obs: dict, lane_start: np.ndarray, lane_goal: np.ndarray) -> tuple[float, float]:
+    """(steer rad, accel m/s^2) from the observation: lane keeping + trust-dependent speed."""
     x, y, yaw, v = obs["ego"]
     axis = lane_goal - lane_start
     t = axis / np.linalg.norm(axis)
@@ -40,32 +50,36 @@ def user_controller(obs: dict, lane_start: np.ndarray, lane_goal: np.ndarray) ->
         if 0.0 < ahead < 25.0:
             v_ref = min(v_ref, 3.0 + 5.0 * trust)
     remaining = float((lane_goal - np.array([x, y])) @ t)
-    v_ref = min(v_ref, max(0.0, remaining))  # stop at the goal
+    v_ref = min(v_ref, math.sqrt(2.0 * 1.5 * max(0.0, remaining)))  # brake to a stop at the goal
     accel = 1.5 * (v_ref - v)
-    return np.array([steer, accel], dtype=np.float32)
+    return steer, accel
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenario", default="case-1")
+    ap.add_argument("--scenario", default="case-1", help="case-1, case-2 or a scenario file (.toml)")
     ap.add_argument("--sensing", default="keypoints", choices=["keypoints", "render"])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="write top view and figures here")
     args = ap.parse_args()
 
-    env = gym.make("trustnav/Drive-v0", scenario=args.scenario, sensing=args.sensing)
+    env = gym.make("trustnav/Drive-v0", config={"scenario": args.scenario, "sensing": args.sensing},
+                   render_mode="rgb_array" if args.out else None)  # fmt: skip
     sc = env.unwrapped.scenario
+    veh = sc.vehicle
     start, goal = np.array(sc.ego_start), np.array(sc.goal)
     obs, info = env.reset(seed=args.seed)
     closest = np.full(len(sc.pedestrians), np.inf)
     total = 0.0
     terminated = truncated = False
     while not (terminated or truncated):
-        obs, reward, terminated, truncated, info = env.step(user_controller(obs, start, goal))
+        steer, accel = user_controller(obs, start, goal)
+        action = normalised(steer, accel, math.radians(veh.steer_max_deg), veh.accel_min, veh.accel_max)
+        obs, reward, terminated, truncated, info = env.step(action)
         closest = np.minimum(closest, info["distances"])
         total += reward
-    print(f"{sc.name}: {'goal reached' if terminated else 'time out'} at t = {obs['time'][0]:.1f} s, "
-          f"return {total:.1f}, {info['frames']} camera frames")  # fmt: skip
+    print(f"{sc.name}: episode ended ({info['reason']}) at t = {obs['time'][0]:.1f} s, speed "
+          f"{info['speed']:.1f} m/s, return {total:.1f}, {info['frames']} camera frames")  # fmt: skip
     held = env.unwrapped.result().trusts[-1]  # the trust held for each pedestrian (scored against the truth)
     for p, d, tr in zip(sc.pedestrians, closest, held, strict=True):
         print(f"  {p.name:<11} closest {d:.2f} m (R = {sc.control.safety_radius}) final trust {tr:.2f}")

@@ -203,7 +203,7 @@ def test_gym_environment_steps_the_world():
 
     import trustnav.sim.driving.gym_env  # noqa: F401  (registers the id)
 
-    env = gym.make("trustnav/Drive-v0", scenario="case-1", max_episode_steps=400)
+    env = gym.make("trustnav/Drive-v0", scenario="case-1", max_episode_steps=400, render_mode="rgb_array")
     obs, _ = env.reset(seed=3)
     assert obs["ego"].shape == (4,) and obs["pedestrians"].shape == (8, 2) and obs["trusts"].shape == (8,)
     # perceived by default: the frame at t = 0 found both, placed near where they stand, with trust
@@ -219,7 +219,7 @@ def test_gym_environment_steps_the_world():
     true_env.close()
     total = 0.0
     for _ in range(30):
-        obs, reward, terminated, truncated, _info = env.step(np.array([0.0, 1.0], dtype=np.float32))
+        obs, reward, terminated, truncated, _info = env.step(np.array([0.0, 0.5], dtype=np.float32))  # 1.5 m/s^2
         total += reward
         if terminated or truncated:
             break

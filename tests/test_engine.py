@@ -110,7 +110,7 @@ def test_gym_environment_steps_the_engine_world_like_the_runner():
         return make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True)
 
     ref = run(DriveSimulation(sc, seed=2), policy(), max_steps=40)
-    env = gym.make("trustnav/Drive-v0", scenario="case-1")
+    env = gym.make("trustnav/Drive-v0", config={"scenario": "case-1", "normalize_actions": False})  # physical
     obs, _ = env.reset(seed=2)
     assert isinstance(env.unwrapped.sim, World) and isinstance(env.unwrapped.rollout, Rollout)
     mpc = policy()

@@ -51,6 +51,11 @@ BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
     "camera_height": (float, 0.2, 20, False, " m"),
     "fov": (float, 10, 170, False, " degrees"),
     "pitch": (float, -45, 45, False, " degrees"),
+    "safety_radius": (float, 0, 20, True, " m"),
+    "horizon": (int, 1, 100, False, " steps"),
+    "v_max": (float, 0, 30, True, " m/s"),
+    "duration": (float, 0, 600, True, " s"),
+    "carla_fov": (float, 10, 170, False, " degrees"),
 }
 
 
@@ -484,7 +489,7 @@ def _estimate(args: argparse.Namespace) -> int:
 
 
 def _drive_runs(
-    case: str,
+    case: object,
     sensing: str,
     attentive: bool | None,
     seed: int,
@@ -496,7 +501,8 @@ def _drive_runs(
     label: str = "",
     state: str = "perceived",
 ) -> list[tuple[str, dict, Path]]:
-    """Run a driving case (Case II: both variants unless one is asked for) and write its outputs.
+    """Run a driving case (a preset name, a scenario file or a DriveScenario; Case II: both variants
+    unless one is asked for) and write its outputs.
 
     ``run_variant(scenario, attentive, progress) -> DriveResult`` drives one variant (default:
     trustnav's own world, :func:`trustnav.sim.driving.run_drive`; the CARLA bridge gives its own);
@@ -521,7 +527,8 @@ def _drive_runs(
                 pipeline.backend.close()
 
     drive_one = run_variant or own_world
-    sc = load_drive_scenario(case)
+    sc = case if hasattr(case, "pedestrians") else load_drive_scenario(case)  # type: ignore[arg-type]
+    case = sc.name
     if attentive is not None:
         variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
     elif sc.variants:
@@ -582,12 +589,46 @@ def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
                   f"identity switches {m.get('id_switches', 0)}")  # fmt: skip
 
 
-def _drive(args: argparse.Namespace) -> int:
-    from trustnav.sim.driving import DRIVE_SCENARIOS
+def _drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """The scenario of ``args.case`` (a preset name or a scenario file) with the camera, control and
+    CARLA options of the command line applied; each refused with an error naming the option."""
+    import dataclasses
 
-    if args.case not in DRIVE_SCENARIOS:
-        raise ValueError(f"unknown case {args.case!r}: expected one of {', '.join(DRIVE_SCENARIOS)}")
-    check_bounds(args, "seed", "rate", "control_rate", "port", "timeout")
+    from trustnav.sim.driving import load_drive_scenario
+
+    opt = lambda name: getattr(args, name, None)  # noqa: E731  (an option a caller's namespace lacks: not given)
+    check_bounds(args, "seed", "rate", "control_rate", "port", "timeout", "fov", "camera_height", "pitch",
+                 "safety_radius", "horizon", "v_max", "duration", "carla_fov")  # fmt: skip
+    sc = load_drive_scenario(args.case)
+    camera = {k: v for k, v in (("fov_deg", opt("fov")), ("up", opt("camera_height")), ("pitch_deg", opt("pitch")))
+              if v is not None}  # fmt: skip
+    control = {k: v for k, v in (("safety_radius", opt("safety_radius")), ("horizon", opt("horizon")),
+               ("reference_v_max", opt("v_max"))) if v is not None}  # fmt: skip
+    route = {k: v for k, v in (("town", opt("town")), ("fov_deg", opt("carla_fov")),
+             ("attentive_walker", _walker_arg(opt("attentive_walker"))),
+             ("distracted_walker", _walker_arg(opt("distracted_walker")))) if v is not None}  # fmt: skip
+    changes: dict = {}
+    if camera:
+        changes["camera"] = dataclasses.replace(sc.camera, **camera)
+    if control:
+        changes["control"] = dataclasses.replace(sc.control, **control)
+    if route:
+        changes["carla"] = dataclasses.replace(sc.carla, **route)
+    if opt("duration") is not None:
+        changes["duration"] = float(opt("duration"))
+    return dataclasses.replace(sc, **changes) if changes else sc
+
+
+def _walker_arg(v: str | None) -> int | str | None:
+    """A walker given on the command line: an index (digits) or a blueprint id."""
+    return int(v) if v is not None and v.isdigit() else v
+
+
+def _drive(args: argparse.Namespace) -> int:
+    sc = _drive_scenario(args)
+    route = ("town", "carla_fov", "attentive_walker", "distracted_walker")
+    if args.world != "carla" and any(getattr(args, name, None) is not None for name in route):
+        raise ValueError("--town, --carla-fov, --attentive-walker and --distracted-walker need --world carla")
     run_variant, label, on = None, "", ""
     errors: tuple[type[Exception], ...] = ()  # a world's failures that carry their own exit code
     if args.world == "carla":
@@ -596,18 +637,19 @@ def _drive(args: argparse.Namespace) -> int:
         errors = (CarlaCommandError,)
 
         try:
-            address, run_variant = carla_runner(args)
+            address, run_variant = carla_runner(args, sc.carla.options())
         except CarlaCommandError as exc:
             print(f"trustnav: error: {exc}", file=sys.stderr)
             return exc.code
         label, on = "CARLA", f" on CARLA at {address}"
-    default = f"out/{args.case}" if args.sensing == "render" else f"out/{args.case}-{args.sensing}"
+    stem = args.case if args.case in ("case-1", "case-2") else Path(args.case).stem
+    default = f"out/{stem}" if args.sensing == "render" else f"out/{stem}-{args.sensing}"
     if args.world == "carla":
         default += "-carla"
     folder = OutputFolder(args.out or default, args.overwrite, DRIVE_OUTPUTS)
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
         try:
-            done = _drive_runs(args.case, args.sensing, args.attentive, args.seed, args.rate, folder.path,
+            done = _drive_runs(sc, args.sensing, args.attentive, args.seed, args.rate, folder.path,
                                video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
                                label=label, state=getattr(args, "state", "perceived"))  # fmt: skip
         except errors as exc:
@@ -622,9 +664,81 @@ def _drive(args: argparse.Namespace) -> int:
     if len(done) > 1:
         runs = ", ".join(f"{tag}/" for tag, _, _ in done)
         files = f"top_view.png, distance.png, metrics.json comparing the runs; per run in {runs}: {files}"
-    print(f"drive {args.case}{on} ({args.sensing} sensing): wrote {out}/ ({files})")
+    print(f"drive {sc.name}{on} ({args.sensing} sensing): wrote {out}/ ({files})")
     _drive_summary(done, out)
     return 0
+
+
+COMPARE_OUTPUTS = ("compare.png", "metrics.json", "table.csv")
+
+
+def _compare(args: argparse.Namespace) -> int:
+    """``trustnav compare SCENARIO``: trust-aware beside constant trust 0 and 1 (one figure, a table)."""
+    import csv
+
+    from tqdm import tqdm
+
+    from trustnav.sim.driving.compare import compare_trust, comparison_rows
+    from trustnav.viz.drive_plots import plot_trust_comparison
+
+    sc = _drive_scenario(args)
+    stem = args.case if args.case in ("case-1", "case-2") else Path(args.case).stem
+    folder = OutputFolder(args.out or f"out/compare-{stem}-{args.sensing}", args.overwrite, COMPARE_OUTPUTS)
+    bars: dict[str, tqdm] = {}
+
+    def progress(label: str, t: float, duration: float) -> None:
+        if label not in bars:
+            for b in bars.values():
+                b.close()
+            bars[label] = tqdm(total=duration, desc=f"{sc.name} {label}", unit="s", leave=False,
+                               bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]")  # fmt: skip
+        bars[label].update(t - bars[label].n)
+
+    try:
+        comp = compare_trust(sc, sensing=args.sensing, seed=args.seed, attentive=args.attentive, capture_rate=args.rate,
+                             control_rate=args.control_rate, state=args.state, progress=progress)  # fmt: skip
+    finally:
+        for b in bars.values():
+            b.close()
+    rows = comparison_rows(comp)
+    with folder:
+        groups = [(v, [(r.mode, r.result) for r in runs]) for v, runs in comp.by_variant()]
+        plot_trust_comparison(groups, folder.path / "compare.png")
+        metrics = {"scenario": sc.name, "sensing": args.sensing, "seed": args.seed, "state": args.state,
+                   "table": rows, "runs": [dict(variant=r.variant, mode=r.mode, **r.result.metrics())
+                                           for r in comp.runs]}  # fmt: skip
+        (folder.path / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        with open(folder.path / "table.csv", "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["variant", "mode", "trust_given", "gamma", "pedestrian", "attentive", "min_distance",
+                        "final_trust", "time_to_goal", "max_lateral_offset", "margin_violations"])  # fmt: skip
+            for r in rows:
+                for p in r["pedestrians"]:
+                    w.writerow([r["variant"], r["mode"], r["trust_given"], r["gamma"], p["name"], p["attentive"],
+                                p["min_distance"], p["final_trust"], r["time_to_goal"], r["max_lateral_offset"],
+                                r["margin_violations"]])  # fmt: skip
+    out = folder.out
+    print(f"compare {sc.name} ({args.sensing} sensing, seed {args.seed}): wrote {out / 'compare.png'}, "
+          f"{out / 'table.csv'}, {out / 'metrics.json'}")  # fmt: skip
+    _compare_table(rows, sc.control.safety_radius)
+    return 0
+
+
+def _compare_table(rows: list[dict], radius: float) -> None:
+    """The comparison as a text table: one line per run, closest approach per pedestrian."""
+    names = [p["name"] for p in rows[0]["pedestrians"]]
+    head = f"  {'run':<30}{'gamma':>7}" + "".join(f"{'min d ' + n:>18}" for n in names)
+    print(head + f"{'goal':>9}{'bend':>8}{'in R':>6}")
+    for r in rows:
+        label = f"{r['variant'] + ': ' if r['variant'] else ''}{r['mode']}"
+        gamma = "est." if r["gamma"] is None else f"{r['gamma']:.2f}"
+        goal = "-" if r["time_to_goal"] is None else f"{r['time_to_goal']:.1f} s"
+        cells = "".join(f"{p['min_distance']:>16.2f} m" for p in r["pedestrians"])
+        print(f"  {label:<30}{gamma:>7}{cells}{goal:>9}{r['max_lateral_offset']:>6.2f} m{r['margin_violations']:>6}")
+    print(
+        f"  (min d: closest true distance, R = {radius:g} m; gamma: the barrier rate the controller got, est. = "
+        "from each pedestrian's estimated trust; bend: largest offset from the lane centre; in R: steps inside R)"
+    )
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -775,6 +889,19 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def _scenario_options(d: argparse.ArgumentParser) -> None:
+    """The camera and control options of ``drive`` and ``compare`` (each overrides the scenario's)."""
+    c = d.add_argument_group("camera (default: the scenario's)")
+    c.add_argument("--fov", type=float, help=f"horizontal field of view, {_range('fov')}")
+    c.add_argument("--camera-height", type=float, help=f"camera height above the ground, {_range('camera_height')}")
+    c.add_argument("--pitch", type=float, help=f"camera pitch, > 0 looking down, {_range('pitch')}")
+    k = d.add_argument_group("control (default: the scenario's)")
+    k.add_argument("--safety-radius", type=float, help=f"the margin R, {_range('safety_radius')}")
+    k.add_argument("--horizon", type=int, help=f"MPC horizon N_h, {_range('horizon')}")
+    k.add_argument("--v-max", type=float, help=f"speed bound of the reference, {_range('v_max')}")
+    k.add_argument("--duration", type=float, help=f"time limit of an episode, {_range('duration')}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="trustnav", description="Trust-aware safe navigation (MPC-CBF with pedestrian trust).")
     p.add_argument("--version", action="version", version=f"trustnav {_version()}")
@@ -831,7 +958,8 @@ def build_parser() -> argparse.ArgumentParser:
         "drive",
         help="end-to-end trust-aware driving (paper Section IV, Cases I and II): figures, MP4, metrics.json",
     )
-    d.add_argument("case", help="case-1 (attentive + distracted standing) or case-2 (one walking pedestrian)")
+    d.add_argument("case", help="case-1 (attentive + distracted standing), case-2 (one walking pedestrian) or a "
+                   "scenario file (.toml, the form of sim/scenarios/case-1.toml; docs/drive.md)")  # fmt: skip
     d.add_argument("--sensing", choices=["render", "keypoints"], default="render",
                    help="render: rendered frames + perception (default); keypoints: projected joints")  # fmt: skip
     d.add_argument("--state", choices=["perceived", "true"], default="perceived",
@@ -847,7 +975,8 @@ def build_parser() -> argparse.ArgumentParser:
                    f"{_range('rate')} (default: scenario, 1)")  # fmt: skip
     d.add_argument("--control-rate", type=float,
                    help=f"controller rate, {_range('control_rate')} (default: scenario, 20)")  # fmt: skip
-    d.add_argument("--out", help="output directory (default out/<case>, out/<case>-keypoints)")
+    _scenario_options(d)
+    d.add_argument("--out", help="output directory (default out/<case or file stem>, out/<...>-keypoints)")
     d.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
     d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
     d.add_argument("--world", choices=["sim", "carla"], default="sim",
@@ -856,7 +985,34 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--port", type=int, default=2000, help=f"CARLA server port, {_range('port')} (--world carla)")
     d.add_argument("--timeout", type=float, default=10.0,
                    help=f"CARLA connection timeout, {_range('timeout')} (default 10; --world carla)")  # fmt: skip
+    d.add_argument("--town", help="CARLA map to load, e.g. Town03 (default: the scenario's [carla] town, else "
+                   "the running world; --world carla)")  # fmt: skip
+    d.add_argument("--carla-fov", type=float, help=f"CARLA camera field of view, {_range('carla_fov')} "
+                   "(default: [carla] fov_deg, else the camera's; --world carla)")  # fmt: skip
+    d.add_argument("--attentive-walker", help="CARLA walker blueprint id or index for attentive pedestrians "
+                   "(--world carla)")  # fmt: skip
+    d.add_argument("--distracted-walker", help="CARLA walker blueprint id or index for distracted pedestrians "
+                   "(--world carla)")  # fmt: skip
     d.set_defaults(func=_drive)
+    q = sub.add_parser("compare", help="what trust buys: a scenario driven trust-aware and with constant trust 0 "
+                       "and 1 (both ends of gamma): one figure of paths and distances, a table")  # fmt: skip
+    q.add_argument("case", help="case-1, case-2 or a scenario file (.toml)")
+    q.add_argument("--sensing", choices=["keypoints", "render"], default="keypoints",
+                   help="keypoints: projected joints (default, fast); render: frames + perception")  # fmt: skip
+    q.add_argument("--state", choices=["perceived", "true"], default="perceived",
+                   help="the controller's pedestrians: perceived (default) or true (the world's)")  # fmt: skip
+    gq = q.add_mutually_exclusive_group()
+    gq.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
+                    help="every pedestrian attentive")  # fmt: skip
+    gq.add_argument("--distracted", dest="attentive", action="store_const", const=False,
+                    help="every pedestrian distracted")  # fmt: skip
+    q.add_argument("--seed", type=int, default=0, help=f"seed of sensing noise, {_range('seed')} (default 0)")
+    q.add_argument("--rate", type=float, help=f"camera rate, {_range('rate')} (default: scenario)")
+    q.add_argument("--control-rate", type=float, help=f"controller rate, {_range('control_rate')} (default: scenario)")
+    _scenario_options(q)
+    q.add_argument("--out", help="output directory (default out/compare-<case or file stem>-<sensing>)")
+    q.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
+    q.set_defaults(func=_compare)
     w = sub.add_parser("sweep", help="a campaign of closed-loop episodes on Dask (records, summary, plots)")
     w.add_argument("spec", help="campaign spec (YAML or TOML)")
     w.add_argument("--out", required=True, help="output directory: new, empty or this campaign's own (records are "

@@ -31,14 +31,18 @@ class CarlaCommandError(Exception):
         self.code = code
 
 
-def carla_runner(args: argparse.Namespace) -> tuple[str, Callable[[Any, bool | None, Progress | None], Any]]:
-    """(where: "H:P", run_variant(scenario, attentive, progress) -> DriveResult) for ``args``."""
+def carla_runner(
+    args: argparse.Namespace, route: dict[str, Any] | None = None
+) -> tuple[str, Callable[[Any, bool | None, Progress | None], Any]]:
+    """(where: "H:P", run_variant(scenario, attentive, progress) -> DriveResult) for ``args``;
+    ``route``: further :class:`CarlaOptions` (town, fov_deg, walkers: the scenario's ``[carla]``
+    section with the command line's options applied)."""
     try:
         carla = load_carla()
     except CarlaNotInstalled as exc:
         raise CarlaCommandError(str(exc), 2) from None
     try:
-        options = CarlaOptions(host=args.host, port=args.port, timeout=args.timeout)
+        options = CarlaOptions(host=args.host, port=args.port, timeout=args.timeout, **(route or {}))
     except ValueError as exc:
         raise CarlaCommandError(str(exc), 2) from None
 

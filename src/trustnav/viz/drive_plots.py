@@ -32,6 +32,7 @@ __all__ = [
     "plot_distance",
     "plot_top_view",
     "plot_trust",
+    "plot_trust_comparison",
     "trust_rgb",
     "trusts_in_force",
     "write_animation",
@@ -304,6 +305,75 @@ def plot_distance(
     ax.set_ylabel("distance to pedestrian (m)")
     ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians")
     style.legend(ax, loc="lower left")  # before the approach: nothing there
+    return style.save(fig, path)
+
+
+#: line style and colour of the runs of a trust comparison, in order (trust-aware first)
+_MODES = (("-", style.EGO_COLOUR), ("--", "#0057b8"), (":", "#b8005c"))
+
+
+@style.styled()
+def plot_trust_comparison(
+    groups: Sequence[tuple[str, Sequence[tuple[str, DriveResult]]]], path: str | Path, title: str | None = None
+) -> Path:
+    """What trust buys, in one figure: per group (a scenario's variant: Case II's attentive and
+    distracted walker; one group otherwise) a row of the paths on the map, to scale across the
+    road, with each pedestrian and R around it at its closest approach in the trust-aware run, and
+    the distance to each pedestrian over time, one line style per run (label, result): e.g.
+    trust-aware, constant trust 0, constant trust 1."""
+    from matplotlib.patches import Circle
+
+    n = len(groups)
+    fig, axes = style.new_figure((13.0, 3.4 * n + 0.4), nrows=n, ncols=2, squeeze=False,
+                                 gridspec_kw={"width_ratios": (1.4, 1.0)})  # fmt: skip
+    r0 = groups[0][1][0][1]
+    sc = r0.scenario
+    radius = sc.control.safety_radius
+    for (gname, runs), (ax, ax_d) in zip(groups, axes, strict=True):
+        first = runs[0][1]
+        ax.set_facecolor(_SURROUND)
+        ax.grid(False)
+        road, walks, _ = first.road_polygons()
+        ax.fill(*_yx(road), color=_ROAD, zorder=0)
+        for w in walks:
+            ax.fill(*_yx(w), color=_SIDEWALK, zorder=0)
+        ax.plot(*_yx(np.array([sc.ego_start, sc.goal])), color="white", ls=(0, (6, 4)), lw=1.0, zorder=1)
+        for k, (label, r) in enumerate(runs):
+            ls, colour = _MODES[k % len(_MODES)]
+            ax.plot(*_yx(r.ego[:, :2]), ls=ls, color=colour, lw=2.0 if k == 0 else 1.6, zorder=3, label=label)
+        for j, ped in enumerate(first.scenario.pedestrians):
+            c = style.person_colour(j)
+            if np.linalg.norm(first.pedestrians[-1, j] - first.pedestrians[0, j]) > 0.05:
+                ax.plot(*_yx(first.pedestrians[:, j]), color=c, lw=1.3, zorder=2)
+            q = first.pedestrians[int(np.argmin(first.distances[:, j])), j]
+            ax.add_patch(Circle(_yx(q), radius, fill=False, ls="--", color=c, lw=1.2, zorder=4))
+            ax.plot(*_yx(q), "o", color=c, ms=7, mec="k", zorder=6,
+                    label=style.person_label(ped.name, ped.attentive))  # fmt: skip
+        ax.plot(*_yx(np.array(sc.goal)), marker="*", ms=12, color="gold", mec="k", zorder=5, ls="")
+        ys = np.concatenate([r.ego[:, 1] for _, r in runs])
+        ax.set_xlim(max(ys.max(), sc.ego_start[1]) + 2, min(ys.min(), sc.goal[1]) - 2)
+        xs = np.array([sc.ego_start[0], sc.goal[0], *[p.position[0] for p in sc.pedestrians]])
+        ax.set_ylim(xs.min() - 5.0, xs.max() + 5.0)
+        ax.set_xlabel("map y (m), driving direction →")
+        ax.set_ylabel("map x (m), magnified")
+        ax.set_title(f"{gname + ': ' if gname else ''}paths (across the road magnified; rings: R = {radius:g} m "
+                     "at the trust-aware closest approach)", fontsize=9)  # fmt: skip
+        style.legend(ax, loc="lower left", ncol=2, fontsize=7)
+        for k, (label, r) in enumerate(runs):
+            ls, _ = _MODES[k % len(_MODES)]
+            for j in range(len(r.scenario.pedestrians)):
+                d = r.distances[:, j]
+                ax_d.plot(r.times, d, ls=ls, color=style.person_colour(j), lw=1.8 if k == 0 else 1.4,
+                          label=f"{r.scenario.pedestrians[j].name}, {label}: min {d.min():.2f} m")  # fmt: skip
+        ax_d.axhline(radius, color=style.MARGIN_COLOUR, ls="--", lw=1.1, label=f"R = {radius:g} m")
+        top = max(float(r.distances.max()) for _, r in runs)
+        ax_d.set_ylim(0.0, min(15.0, top + 1.0))
+        ax_d.set_xlim(0.0, max(float(r.times[-1]) for _, r in runs))
+        ax_d.set_xlabel("time (s)")
+        ax_d.set_ylabel("distance to pedestrian (m)")
+        ax_d.set_title(f"{gname + ': ' if gname else ''}distance to each pedestrian")
+        ax_d.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=True, fontsize=6.5)
+    fig.suptitle(title or f"{sc.title}: trust-aware vs trust-blind ({r0.sensing} sensing, seed {r0.seed})")
     return style.save(fig, path)
 
 

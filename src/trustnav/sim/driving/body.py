@@ -1,5 +1,6 @@
 """Pedestrian bodies for the driving world: a 3-D skeleton (17 COCO joints plus what a renderer
-needs) in three poses, attentive, distracted (texting) and walking, with a small natural sway.
+needs) in four poses, attentive, distracted (texting), walking and texting_walk (walking while
+texting), with a small natural sway.
 
 The paper's Section IV pedestrians (Fig. ``ped_type``): the high-trust one "maintains a neutral
 stance facing the ego vehicle", the low-trust one has "raised hands with bent elbows and neck".
@@ -36,11 +37,12 @@ __all__ = [
 ]
 
 COCO_NAMES: tuple[str, ...] = COCO_KEYPOINTS  # the 17 COCO keypoints, in the perception's order
-POSES = ("attentive", "distracted", "walking")
+POSES = ("attentive", "distracted", "walking", "texting_walk")
 
 Colour = tuple[float, float, float]
 
 STEPS_PER_SECOND = 1.8  # walking cadence
+TEXTING_CADENCE = 0.8  # walking while texting: a slower cadence (share of STEPS_PER_SECOND)
 NECK_YAW_LIMIT = math.radians(75.0)  # head turn relative to the chest
 NECK_PITCH_LIMITS = (math.radians(-25.0), math.radians(45.0))  # up, down
 TORSO_SHARE = 0.35  # share of a look's turn taken by the chest
@@ -288,7 +290,9 @@ def pedestrian_skeleton(
     the neck's limits (75 deg from the chest; the chest turns along by a third of the look, at
     most 20 deg, the hips stay at ``body_yaw``); distracted: forearms raised, elbows bent, phone in both hands at chest
     height, neck bent down ~35 deg, ``look_at`` ignored; walking: gait with legs and arms swinging
-    at ~1.8 steps/s (in place: moving the body is the caller's), head toward ``look_at`` if given.
+    at ~1.8 steps/s (in place: moving the body is the caller's), head toward ``look_at`` if given;
+    texting_walk: walking while texting: the gait at a slower cadence (``TEXTING_CADENCE``) with the
+    arms, phone, rounded shoulders and bent neck of distracted, ``look_at`` ignored.
     A small sway (postural lean ~1 deg, head ~3 deg, arms ~2 deg), set by ``phase`` and scaled by
     ``sway`` (0 = none), makes consecutive frames differ a little.
     """
@@ -305,14 +309,17 @@ def pedestrian_skeleton(
     s = dims.s
     deg = math.radians
     w = [sway * _wobble(t, phase, k) for k in range(8)]
+    gait = pose in ("walking", "texting_walk")  # legs walking
+    texting = pose in ("distracted", "texting_walk")  # phone in both hands, head down
+    cadence = STEPS_PER_SECOND * (TEXTING_CADENCE if texting else 1.0)
 
     # --- legs (body frame, pelvis height found afterwards) ---
     hip_y = dims.hip_half_width
-    if pose == "walking":
-        gait = math.pi * STEPS_PER_SECOND * t + 2.0 * math.pi * phase  # one stride = two steps
+    if gait:
+        stride = math.pi * cadence * t + 2.0 * math.pi * phase  # one stride = two steps
         leg_angles = []
         for side in (1.0, -1.0):  # left, right
-            g = gait if side > 0 else gait + math.pi
+            g = stride if side > 0 else stride + math.pi
             flex = deg(22.0) * math.sin(g)
             knee = deg(6.0) + deg(42.0) * max(0.0, math.cos(g - 0.35)) ** 2
             leg_angles.append((flex, knee))
@@ -330,18 +337,18 @@ def pedestrian_skeleton(
     hips = [np.array([0.0, side * hip_y, 0.0]) + lift for side in (1.0, -1.0)]
     knees = [k + lift for k in knees]
     ankles = [a + lift for a in ankles]
-    if pose != "walking":  # feet slightly apart and turned out
+    if not gait:  # feet slightly apart and turned out
         ankles = [a + np.array([0.0, side * 0.02 * s, 0.0]) for a, side in zip(ankles, (1.0, -1.0), strict=True)]
     toes = []
     for a, (flex, knee) in zip(ankles, leg_angles, strict=True):
-        foot_pitch = (flex - knee) * 0.6 if pose == "walking" else 0.0
+        foot_pitch = (flex - knee) * 0.6 if gait else 0.0
         toes.append(a + dims.foot * np.array([math.cos(foot_pitch), 0.0, -0.45 + math.sin(foot_pitch)]) * 0.92)
 
     # --- where to look: relative yaw and elevation of look_at, from about the head's position ---
     root = np.array([pos[0], pos[1], pos[2] if len(pos) == 3 else 0.0])
     r_body = rot_z(body_yaw)
     look_rel = look_elev = None
-    if look_at is not None and pose != "distracted":
+    if look_at is not None and not texting:
         target = np.asarray(look_at, dtype=float).reshape(-1)
         if target.shape != (3,) or not np.all(np.isfinite(target)):
             raise ValueError(f"look_at must be (x, y, z) finite, got {look_at!r}")
@@ -353,12 +360,12 @@ def pedestrian_skeleton(
     twist = 0.0 if look_rel is None else float(np.clip(TORSO_SHARE * look_rel, -TORSO_TWIST_LIMIT, TORSO_TWIST_LIMIT))
 
     # --- torso: from the pelvis up, leaning a little ---
-    lean_fwd = deg(3.0 if pose == "walking" else 0.0) + deg(0.9) * w[0]
-    if pose == "distracted":
+    lean_fwd = deg(3.0 if gait else 0.0) + deg(0.9) * w[0]
+    if texting:
         lean_fwd += deg(4.0)  # shoulders rounded over the phone
     lean_side = deg(0.9) * w[1]
-    if pose == "walking":
-        lean_side += deg(1.5) * math.sin(math.pi * STEPS_PER_SECOND * t + 2.0 * math.pi * phase)
+    if gait:
+        lean_side += deg(1.5) * math.sin(math.pi * cadence * t + 2.0 * math.pi * phase)
     torso_rot = rot_z(twist) @ rot_x(lean_side) @ rot_y(lean_fwd)
     pelvis = lift.copy()
     up_len = dims.shoulder_height - dims.hip_height
@@ -372,11 +379,11 @@ def pedestrian_skeleton(
     phone_local = None
     for side, shoulder in zip((1.0, -1.0), shoulders, strict=True):
         jit = deg(2.0) * w[2 if side > 0 else 3]
-        if pose == "distracted":
+        if texting:
             upper = torso_rot @ np.array([0.26 + jit, -side * 0.13, -1.0])
             fore = np.array([0.80, -side * 0.36, 0.46 + jit])
-        elif pose == "walking":
-            g = math.pi * STEPS_PER_SECOND * t + 2.0 * math.pi * phase + (math.pi if side > 0 else 0.0)
+        elif gait:
+            g = math.pi * cadence * t + 2.0 * math.pi * phase + (math.pi if side > 0 else 0.0)
             swing = deg(18.0) * math.sin(g)
             upper = torso_rot @ (_sagittal(swing + jit) + np.array([0.0, side * 0.10, 0.0]))
             fore = _sagittal(swing + deg(22.0) + deg(8.0) * math.sin(g)) + np.array([0.0, side * 0.05, 0.0])
@@ -387,11 +394,11 @@ def pedestrian_skeleton(
         elbows.append(e)
         wrists.append(wr)
         hands.append(h)
-    if pose == "distracted":
+    if texting:
         phone_local = 0.5 * (hands[0] + hands[1]) + np.array([0.012, 0.0, 0.018]) * s
 
     # --- head (yaw relative to the hips' frame; the neck's limits count from the chest) ---
-    if pose == "distracted":
+    if texting:
         rel_yaw = deg(2.0) * w[4]
         pitch = deg(35.0) + deg(2.0) * w[6]
     else:
@@ -400,7 +407,7 @@ def pedestrian_skeleton(
         if look_rel is not None and look_elev is not None:
             rel_yaw += float(np.clip(look_rel - twist, -NECK_YAW_LIMIT, NECK_YAW_LIMIT))
             pitch -= look_elev
-        elif pose == "walking":
+        elif gait:
             pitch += deg(6.0)
     rel_yaw = twist + float(np.clip(rel_yaw - twist, -NECK_YAW_LIMIT - deg(5), NECK_YAW_LIMIT + deg(5)))
     pitch = float(np.clip(pitch, *NECK_PITCH_LIMITS))

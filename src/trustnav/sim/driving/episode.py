@@ -45,6 +45,7 @@ from trustnav.geometry.camera import CameraPose
 from trustnav.perception.localisation import chi2_90
 from trustnav.perception.pedestrians import PedestrianEstimator, SeenPerson
 from trustnav.sim.driving import topview
+from trustnav.sim.driving.behaviour import PedestrianMotion
 from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.sensing import (
     SENSING_MODES,
@@ -128,13 +129,19 @@ class DriveWorld(Protocol):
 
 class SimWorld:
     """trustnav's own world: the ego :class:`VehiclePlant` (bicycle, actuation latency, fine
-    sub-steps) and constant-velocity pedestrians posed by body.py."""
+    sub-steps) and pedestrians posed by body.py: constant velocity, or with a ``behaviour`` (path,
+    step-out, kerb wait and gap acceptance: :mod:`trustnav.sim.driving.behaviour`)."""
 
     name = "sim"
 
     def __init__(self, scenario: DriveScenario) -> None:
         self.scenario = scenario
         self.plant = VehiclePlant(scenario.vehicle, scenario.initial_state())
+        self.motions: list[PedestrianMotion | None] = [
+            None if p.behaviour is None else PedestrianMotion(p.position, p.velocity, p.behaviour)
+            for p in scenario.pedestrians
+        ]
+        self._behaved = any(m is not None for m in self.motions)
 
     @property
     def time(self) -> float:
@@ -144,11 +151,15 @@ class SimWorld:
         return self.plant.state.copy()
 
     def pedestrian_states(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return pedestrian_states(self.scenario, self.time)
+        pos, vel = pedestrian_states(self.scenario, self.time)
+        for j, m in enumerate(self.motions):
+            if m is not None:
+                pos[j], vel[j] = m.position, m.velocity
+        return pos, vel
 
     def camera_view(self) -> tuple[CameraPose, Bodies]:
         cam = self.scenario.camera.pose(self.plant.state[:2], float(self.plant.state[2]))
-        return cam, pedestrian_bodies(self.scenario, self.time, cam.position)
+        return cam, pedestrian_bodies(self.scenario, self.time, cam.position, self.motions if self._behaved else None)
 
     def frame_image(self) -> NDArray[np.uint8] | None:
         return None
@@ -163,7 +174,15 @@ class SimWorld:
         sc = self.scenario
         p0 = np.array([p.position for p in sc.pedestrians])
         v0 = np.array([p.velocity for p in sc.pedestrians])
-        return sub, p0[None] + sub_t[:, None, None] * v0[None]
+        peds = p0[None] + sub_t[:, None, None] * v0[None]
+        if self._behaved:  # behaving pedestrians, sub-step by sub-step with the car where it was then
+            h = duration / len(sub)
+            for i in range(len(sub)):
+                for j, m in enumerate(self.motions):
+                    if m is not None:
+                        m.advance(h, sub[i])
+                        peds[i, j] = m.position
+        return sub, peds
 
 
 class DriveSimulation:

@@ -1,34 +1,55 @@
 """A Gymnasium environment around the driving world: put any controller in the car.
 
-Importing this module registers ``trustnav/Drive-v0``::
+``import trustnav`` registers ``trustnav/Drive-v0`` (when gymnasium is installed; importing this
+module registers it too). Configuration follows highway-env: a dictionary of the keys of
+:meth:`DriveEnv.default_config`, given to ``gym.make`` or to :meth:`DriveEnv.configure`::
 
     import gymnasium as gym
-    import trustnav.sim.driving.gym_env  # registers the id
-    env = gym.make("trustnav/Drive-v0", scenario="case-1", sensing="keypoints")
+    import trustnav
+    env = gym.make("trustnav/Drive-v0", config={"scenario": "case-1", "sensing": "keypoints"})
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
-Action: (steer rad, acceleration m/s^2) within the vehicle's limits, sent to the car every control
-period (1 / control.rate s; it acts after the actuation latency). Observation: ``ego`` (x, y, yaw, v)
-and up to ``max_pedestrians`` (K) pedestrians, nearest first, zero-padded: ``pedestrians`` (K, 2)
-positions, ``velocities`` (K, 2), ``covariances`` (K, 4, 4) of (x, y, v_x, v_y), ``trusts`` (K,),
-``present`` (K,) 1 for a slot that holds a pedestrian; ``time``. With ``state="perceived"``
-(default) they are the camera's world tracks (positions from the image, trust per track, 0
-until a track has one); with ``state="true"`` the world's pedestrians in scenario order (with the
-scenario's noise, covariances 0) and trusts from perception (0 until first observed).
-Reward: progress along the lane (m) minus 10 per step with a pedestrian inside the margin R;
-terminated at the goal, truncated after ``scenario.duration``.
+Action (``normalize_actions``, default true): two numbers in [-1, 1], sent to the car every control
+period (1 / control.rate s; they act after the actuation latency): ``steer = a[0] * steer_max`` (rad,
+> 0 left) and ``accel = a[1] * accel_max`` for ``a[1] >= 0``, ``a[1] * |accel_min|`` below (0 = hold
+the speed, -1 = full braking). With ``normalize_actions`` false the action is (steer rad, accel m/s^2)
+within the vehicle's limits. An action outside the action space is refused (ValueError), never
+silently clipped.
+
+Observation: ``ego`` (x, y, yaw, v) and up to ``max_pedestrians`` (K) pedestrians, nearest first,
+zero-padded: ``pedestrians`` (K, 2) positions, ``velocities`` (K, 2), ``covariances`` (K, 4, 4) of
+(x, y, v_x, v_y), ``trusts`` (K,), ``present`` (K,) 1 for a slot that holds a pedestrian; ``time``.
+With ``state="perceived"`` (default) they are the camera's world tracks (positions from the image,
+trust per track, 0 until a track has one); with ``state="true"`` the world's pedestrians in
+scenario order (with the scenario's noise, covariances 0) and trusts from perception.
+
+Episode end, each reported in ``info`` (``collision``, ``off_road``, ``reached_goal``, ``time_out``
+and ``reason``, one of "collision", "off_road", "goal", "time" or None), first match wins:
+terminated on a **collision** (the true distance from the car's reference point to a pedestrian,
+over the world's sub-steps, below ``contact_radius``), on **leaving the road** (the car's centre
+beyond the drivable edge of the scenario's ``[road]`` by more than ``off_road_margin``, or past
+its ends; ``terminate_off_road``), at the **goal** (within the scenario's ``goal_tolerance`` at a
+speed <= ``goal_max_speed``; ``goal_max_speed`` None: the goal is a pass-through and counts at any
+speed); truncated after ``scenario.duration``. A step after the episode has ended is refused
+(RuntimeError) until :meth:`~DriveEnv.reset`.
+Reward: ``progress_reward`` x progress along the lane (m), ``- margin_penalty`` per step with a
+pedestrian inside the margin R, ``- collision_penalty``, ``- off_road_penalty`` at those ends,
+``+ goal_reward`` at the goal.
 
 The environment steps the same engine world as ``trustnav drive`` (:class:`DriveSimulation`, through
 a :class:`~trustnav.sim.engine.Rollout`): the same capture, sensing, controller inputs and plant.
-``render()`` returns the top view (``view="top"``) or the latest camera image (``view="camera"``:
-the rendered frame with render sensing, else the top view), RGB; ``render_fn(result) -> RGB``
-replaces it (e.g. ``trustnav.viz.drive_plots.latest_annotated_frame`` for the annotated frame).
+``render_mode`` is None (default) or "rgb_array": ``render()`` then returns the top view
+(``view="top"``) or the latest camera image (``view="camera"``: the rendered frame with render
+sensing, else the top view), RGB; ``render_fn(result) -> RGB`` replaces it (e.g.
+``trustnav.viz.drive_plots.latest_annotated_frame`` for the annotated frame).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -41,52 +62,139 @@ from trustnav.sim.driving.sensing import RenderSensor, make_render_sensing
 from trustnav.sim.driving.world import DriveScenario, load_drive_scenario
 from trustnav.sim.engine import Decision, Rollout
 
-__all__ = ["ENV_ID", "DriveEnv"]
+__all__ = ["ENV_ID", "DriveEnv", "DriveEnvConfig"]
 
 ENV_ID = "trustnav/Drive-v0"
 
 
+def _number(name: str, v: Any, lo: float, hi: float, *, none: bool = False) -> None:
+    if v is None and none:
+        return
+    ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi
+    if not ok:
+        raise ValueError(f"config {name} must be a number in [{lo:g}, {hi:g}]{' or None' if none else ''}, got {v!r}")
+
+
+@dataclass(frozen=True)
+class DriveEnvConfig:
+    """The environment's configuration (the keys of :meth:`DriveEnv.default_config`; see the module)."""
+
+    scenario: str | DriveScenario = "case-1"
+    sensing: str = "keypoints"
+    attentive: bool | None = None
+    capture_rate: float | None = None
+    state: str = "perceived"
+    max_pedestrians: int = 8
+    view: str = "top"
+    normalize_actions: bool = True
+    contact_radius: float = 1.0
+    terminate_off_road: bool = True
+    off_road_margin: float = 0.0
+    goal_max_speed: float | None = 2.0
+    progress_reward: float = 1.0
+    margin_penalty: float = 10.0
+    collision_penalty: float = 100.0
+    off_road_penalty: float = 100.0
+    goal_reward: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scenario, (str, DriveScenario)):
+            raise ValueError(f"config scenario must be a name, a .toml path or a DriveScenario, got {self.scenario!r}")
+        if self.sensing not in ("keypoints", "render"):
+            raise ValueError(f"config sensing must be 'keypoints' or 'render', got {self.sensing!r}")
+        if self.state not in STATES:
+            raise ValueError(f"config state must be one of {STATES}, got {self.state!r}")
+        if self.attentive not in (None, True, False):
+            raise ValueError(f"config attentive must be true, false or None, got {self.attentive!r}")
+        if self.view not in ("top", "camera"):
+            raise ValueError(f"config view must be 'top' or 'camera', got {self.view!r}")
+        k = self.max_pedestrians
+        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= 256:
+            raise ValueError(f"config max_pedestrians must be an integer in [1, 256], got {k!r}")
+        for name in ("normalize_actions", "terminate_off_road"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"config {name} must be true or false, got {getattr(self, name)!r}")
+        if self.capture_rate is not None:
+            _number("capture_rate", self.capture_rate, 1e-3, 1000.0)
+            if self.capture_rate <= 0:
+                raise ValueError("config capture_rate must be positive")
+        _number("contact_radius", self.contact_radius, 0.0, 10.0)
+        _number("off_road_margin", self.off_road_margin, 0.0, 50.0)
+        _number("goal_max_speed", self.goal_max_speed, 0.0, 100.0, none=True)
+        for name in ("progress_reward", "margin_penalty", "collision_penalty", "off_road_penalty", "goal_reward"):
+            _number(name, getattr(self, name), -1e6, 1e6)
+
+    @classmethod
+    def from_dict(cls, config: dict[str, Any]) -> DriveEnvConfig:
+        """From a configuration dictionary; an unknown key is refused by name."""
+        if not isinstance(config, dict):
+            raise ValueError(f"config must be a dictionary, got {config!r}")
+        unknown = sorted(set(config) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown config keys {unknown}: expected some of {sorted(f.name for f in fields(cls))}")
+        return cls(**config)
+
+
 class DriveEnv(gym.Env):
-    """The trust-aware driving world (paper Section IV) as a Gymnasium environment."""
+    """The trust-aware driving world (paper Section IV) as a Gymnasium environment.
+
+    ``config``: a dictionary of :meth:`default_config` keys (unknown keys refused by name); keyword
+    arguments of the same names are merged over it (``gym.make(ENV_ID, scenario="case-2")``).
+    """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(
         self,
-        scenario: str | DriveScenario = "case-1",
-        sensing: str = "keypoints",
-        attentive: bool | None = None,
-        capture_rate: float | None = None,
-        render_mode: str | None = "rgb_array",
-        view: str = "top",
+        config: dict[str, Any] | None = None,
+        render_mode: str | None = None,
         render_fn: Callable[[DriveResult], NDArray[np.uint8]] | None = None,
-        state: str = "perceived",
-        max_pedestrians: int = 8,
+        **overrides: Any,
     ) -> None:
-        sc = load_drive_scenario(scenario) if isinstance(scenario, str) else scenario
-        if sensing not in ("keypoints", "render"):
-            raise ValueError(f"sensing must be 'keypoints' or 'render', got {sensing!r}")
-        if state not in STATES:
-            raise ValueError(f"state must be one of {STATES}, got {state!r}")
-        n_true = len(sc.pedestrians)
-        if isinstance(max_pedestrians, bool) or not isinstance(max_pedestrians, int) or not 1 <= max_pedestrians <= 256:
-            raise ValueError(f"max_pedestrians must be an integer in [1, 256], got {max_pedestrians!r}")
-        if state == "true" and max_pedestrians < n_true:
-            raise ValueError(f"max_pedestrians ({max_pedestrians}) must hold the scenario's {n_true} pedestrians")
-        self.state = state
-        self.max_pedestrians = max_pedestrians
-        if view not in ("top", "camera"):
-            raise ValueError(f"view must be 'top' or 'camera', got {view!r}")
-        self.scenario = sc.with_attention(attentive)
-        self.sensing = sensing
-        self.capture_rate = capture_rate
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
-        self.view = view
         self.render_fn = render_fn
+        self._renderer: Any = None
+        self._pipeline: Any = None
+        self.sim: DriveSimulation | None = None
+        self.rollout: Rollout | None = None
+        self._ended: str | None = None
+        self.settings = DriveEnvConfig()
+        self.configure({**(config or {}), **overrides})
+
+    # -- configuration (highway-env conventions)
+    @classmethod
+    def default_config(cls) -> dict[str, Any]:
+        """Every configuration key with its default (see the module for what each does)."""
+        return asdict(DriveEnvConfig())
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The configuration in force (a copy)."""
+        return {f.name: getattr(self.settings, f.name) for f in fields(self.settings)}
+
+    def configure(self, config: dict[str, Any]) -> None:
+        """Update the configuration (validated at once; an unknown key or a bad value is refused by
+        name). The spaces follow at once; the new settings act from the next :meth:`reset`."""
+        merged = DriveEnvConfig.from_dict({**self.config, **dict(config)})
+        sc = merged.scenario
+        sc = load_drive_scenario(sc) if isinstance(sc, str) else sc
+        n_true = len(sc.pedestrians)
+        if merged.state == "true" and merged.max_pedestrians < n_true:
+            raise ValueError(f"config max_pedestrians ({merged.max_pedestrians}) must hold the scenario's "
+                             f"{n_true} pedestrians")  # fmt: skip
+        self.settings = merged
+        self.scenario = sc.with_attention(merged.attentive)
+        self.metadata = {**self.metadata, "render_fps": self.scenario.control.rate}
         model = self.scenario.vehicle.model()
         lo, hi = model.input_bounds()
-        self.action_space = spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
-        n = max_pedestrians
+        self._physical = (lo.astype(float), hi.astype(float))
+        if merged.normalize_actions:
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        else:
+            self.action_space = spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
+        n = merged.max_pedestrians
         big = 1e4
         self.observation_space = spaces.Dict(
             {
@@ -99,10 +207,14 @@ class DriveEnv(gym.Env):
                 "time": spaces.Box(0.0, big, shape=(1,), dtype=np.float64),
             }
         )
-        self._renderer: Any = None
-        self._pipeline: Any = None
-        self.sim: DriveSimulation | None = None
-        self.rollout: Rollout | None = None
+        self.sim = self.rollout = None  # a new configuration needs a reset
+
+    # the settings as attributes, for code written against the first version
+    sensing = property(lambda self: self.settings.sensing)
+    state = property(lambda self: self.settings.state)
+    max_pedestrians = property(lambda self: self.settings.max_pedestrians)
+    capture_rate = property(lambda self: self.settings.capture_rate)
+    view = property(lambda self: self.settings.view)
 
     # -- Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -118,22 +230,46 @@ class DriveEnv(gym.Env):
         )
         sc = self.scenario.control
         self.rollout = Rollout(self.sim, horizon=sc.horizon, safety_radius=sc.safety_radius)
-        return self._observe(), self._info()
+        self._ended = None
+        return self._observe(), self._info(None)
+
+    def command(self, action: Any) -> NDArray[np.float64]:
+        """The car's (steer rad, accel m/s^2) for an action of the action space (ValueError outside it)."""
+        try:
+            a = np.asarray(action, dtype=float).reshape(2)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be two numbers, got {action!r}") from None
+        low, high = self.action_space.low.astype(float), self.action_space.high.astype(float)
+        tol = 1e-6 * np.maximum(1.0, np.abs(high - low))
+        if not np.all(np.isfinite(a)) or np.any(a < low - tol) or np.any(a > high + tol):
+            note = " (normalised: each in [-1, 1])" if self.settings.normalize_actions else ""
+            raise ValueError(f"action {a.tolist()} outside the action space [{low.tolist()}, {high.tolist()}]{note}")
+        a = np.clip(a, low, high)  # only rounding below the tolerance
+        if not self.settings.normalize_actions:
+            return a
+        lo, hi = self._physical  # steer: symmetric; accel: 0 holds the speed, +1 accel_max, -1 accel_min
+        return np.array([a[0] * hi[0], a[1] * hi[1] if a[1] >= 0 else -a[1] * lo[1]])
 
     def step(self, action: Any):
         if self.sim is None or self.rollout is None:
             raise RuntimeError("call reset() before step()")
-        u = np.clip(np.asarray(action, dtype=float).reshape(2), self.action_space.low, self.action_space.high)
+        if self._ended is not None:
+            raise RuntimeError(f"the episode has ended ({self._ended}); call reset() before step()")
+        u = self.command(action)
         s_before = self._progress()
         self.rollout.apply(Decision(u))
         obs = self._observe()
-        d = self._distances()
-        inside = bool(np.any(d < self.scenario.control.safety_radius))
-        reward = self._progress() - s_before - (10.0 if inside else 0.0)
-        reason = self.rollout.done()
-        terminated = reason == "goal"
+        cfg = self.settings
+        reason = self._reason()
+        inside = bool(np.any(self._distances() < self.scenario.control.safety_radius))
+        reward = cfg.progress_reward * (self._progress() - s_before) - (cfg.margin_penalty if inside else 0.0)
+        reward -= cfg.collision_penalty if reason == "collision" else 0.0
+        reward -= cfg.off_road_penalty if reason == "off_road" else 0.0
+        reward += cfg.goal_reward if reason == "goal" else 0.0
+        terminated = reason in ("collision", "off_road", "goal")
         truncated = reason == "time"
-        return obs, float(reward), terminated, truncated, self._info()
+        self._ended = reason
+        return obs, float(reward), terminated, truncated, self._info(reason)
 
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode != "rgb_array" or self.sim is None:
@@ -179,13 +315,45 @@ class DriveEnv(gym.Env):
             "time": np.array([o.time]),
         }
 
-    def _info(self) -> dict[str, Any]:
+    def _info(self, reason: str | None) -> dict[str, Any]:
         assert self.sim is not None
         return {
             "distances": self._distances(),
             "frames": len(self.sim.frames),
             "distance_to_goal": self.sim.distance_to_goal(),
+            "speed": float(self.sim.state[3]),
+            "collision": reason == "collision",
+            "off_road": reason == "off_road",
+            "reached_goal": reason == "goal",
+            "time_out": reason == "time",
+            "reason": reason,
+            "road_offset": self.road_offset(),
         }
+
+    def road_offset(self) -> float:
+        """How far the car's centre is beyond the drivable area of the scenario's road (m; 0 on it):
+        beyond an edge sideways, or past either end along it."""
+        assert self.sim is not None
+        r = self.scenario.road
+        a, b = np.asarray(r.start), np.asarray(r.end)
+        length = float(np.linalg.norm(b - a))
+        t = (b - a) / length
+        d = self.sim.state[:2] - a
+        along = float(d @ t)
+        across = abs(float(d @ np.array([-t[1], t[0]])))
+        return max(0.0, across - 0.5 * r.width, -along, along - length)
+
+    def _reason(self) -> str | None:
+        """Why the episode ends now (first match: collision, off_road, goal, time), or None."""
+        assert self.sim is not None
+        cfg = self.settings
+        if np.any(self.sim.min_distance_fine < cfg.contact_radius):
+            return "collision"
+        if cfg.terminate_off_road and self.road_offset() > cfg.off_road_margin:
+            return "off_road"
+        if self.sim.reached_goal() and (cfg.goal_max_speed is None or self.sim.state[3] <= cfg.goal_max_speed + 1e-9):
+            return "goal"
+        return "time" if self.sim.steps >= self.sim.max_steps else None
 
     def _distances(self) -> NDArray[np.float64]:
         assert self.sim is not None
@@ -206,5 +374,5 @@ class DriveEnv(gym.Env):
             self._pipeline = None
 
 
-if ENV_ID not in gym.registry:
+if ENV_ID not in gym.registry:  # also registered by `import trustnav`
     gym.register(id=ENV_ID, entry_point="trustnav.sim.driving.gym_env:DriveEnv")

@@ -26,11 +26,13 @@ from trustnav.geometry.camera import CameraSpec
 from trustnav.perception.localisation import LocaliserConfig
 from trustnav.perception.world_tracking import WorldTrackerConfig
 from trustnav.sim.driving import body
+from trustnav.sim.driving.behaviour import BehaviourSpec, PedestrianMotion, behaviour_from
 from trustnav.sim.driving.street import StreetSpec
 from trustnav.trust import PAPER_GAMMA_CARLA, PAPER_TRUST, SECONDS_TRUST, GammaParams, TrustParams
 
 __all__ = [
     "DRIVE_SCENARIOS",
+    "CarlaRouteSpec",
     "ControlSpec",
     "DriveScenario",
     "PedestrianSpec",
@@ -257,7 +259,9 @@ class PedestrianSpec:
     ``look_at_camera`` turns the head to the car, ``phase`` and ``sway`` of the body's sway,
     ``appearance`` a preset name of body.py (attentive, distracted, walker) or colours).
     ``alternative`` holds the overrides that make the other behaviour (Case II runs the same
-    pedestrian attentive and distracted)."""
+    pedestrian attentive and distracted). ``behaviour`` (optional, ``[pedestrian.behaviour]``):
+    a path, a step-out time, a kerb wait with gap acceptance and a pose while moving
+    (:mod:`trustnav.sim.driving.behaviour`); None: constant ``velocity`` from t = 0."""
 
     name: str
     position: tuple[float, float]
@@ -270,8 +274,13 @@ class PedestrianSpec:
     sway: float = 1.0
     appearance: body.Appearance = field(default_factory=lambda: body.ATTENTIVE_LOOK)
     alternative: tuple[tuple[str, Any], ...] = ()
+    behaviour: BehaviourSpec | None = None
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "behaviour", behaviour_from(self.behaviour))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"pedestrian {self.name}: {exc}") from None
         object.__setattr__(self, "position", _pair(f"pedestrian {self.name} position", self.position))
         object.__setattr__(self, "velocity", _pair(f"pedestrian {self.name} velocity", self.velocity))
         if self.pose not in body.POSES:
@@ -297,11 +306,49 @@ class PedestrianSpec:
         return replace(self, attentive=attentive, alternative=(), **kw)
 
 
+def _walker(name: str, v: Any) -> None:
+    ok = v is None or (isinstance(v, str) and bool(v)) or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+    if not ok:
+        raise ValueError(f"[carla] {name} must be a walker blueprint id or an index >= 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class CarlaRouteSpec:
+    """Optional ``[carla]`` section: how the scenario runs on a CARLA server (``--world carla``).
+    ``town`` a map to load (None: the running world), ``fov_deg`` CARLA's camera field of view
+    (None: the scenario's camera), ``attentive_walker`` / ``distracted_walker`` a walker blueprint
+    id or an index into the sorted ``walker.pedestrian.*`` ids, ``vehicle_blueprint`` the ego car
+    (None: the bridge's defaults). Passed through to the bridge's ``CarlaOptions``; the own world
+    ignores it."""
+
+    town: str | None = None
+    fov_deg: float | None = None
+    attentive_walker: int | str | None = None
+    distracted_walker: int | str | None = None
+    vehicle_blueprint: str | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("town", "vehicle_blueprint"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, str) or not v):
+                raise ValueError(f"[carla] {name} must be a non-empty string, got {v!r}")
+        if self.fov_deg is not None and (
+            isinstance(self.fov_deg, bool) or not isinstance(self.fov_deg, (int, float)) or not 1 <= self.fov_deg <= 170
+        ):
+            raise ValueError(f"[carla] fov_deg must be in [1, 170] degrees, got {self.fov_deg!r}")
+        _walker("attentive_walker", self.attentive_walker)
+        _walker("distracted_walker", self.distracted_walker)
+
+    def options(self) -> dict[str, Any]:
+        """The keyword arguments of the bridge's ``CarlaOptions`` that this section sets."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+
+
 @dataclass(frozen=True)
 class DriveScenario:
     """A driving scenario: ego start, heading and speed, goal, road, pedestrians, camera, vehicle,
-    controller, sensing, time limit. ``variants``: the behaviours a plain run covers ("attentive",
-    "distracted": Case II runs its pedestrian both ways; empty: as given)."""
+    controller, sensing, CARLA route (optional), time limit. ``variants``: the behaviours a plain
+    run covers ("attentive", "distracted": Case II runs its pedestrian both ways; empty: as given)."""
 
     name: str
     title: str
@@ -315,6 +362,7 @@ class DriveScenario:
     vehicle: VehicleSpec = field(default_factory=VehicleSpec)
     control: ControlSpec = field(default_factory=ControlSpec)
     sensing: SensingSpec = field(default_factory=SensingSpec)
+    carla: CarlaRouteSpec = field(default_factory=CarlaRouteSpec)
     variants: tuple[str, ...] = ()
     duration: float = 25.0
     goal_tolerance: float = 1.0
@@ -370,6 +418,8 @@ def _appearance(v: Any) -> body.Appearance:
 
 
 def _section(cls: type, d: dict[str, Any] | None, where: str) -> Any:
+    if d is not None and not isinstance(d, dict):
+        raise ValueError(f"{where}: expected a table of keys, got {d!r}")
     d = dict(d or {})
     known = {f.name for f in fields(cls)}
     unknown = set(d) - known
@@ -388,15 +438,16 @@ def _scenario_from_dict(d: dict[str, Any]) -> DriveScenario:
         if "appearance" in p:
             p["appearance"] = _appearance(p["appearance"])
         peds.append(_section(PedestrianSpec, {**p, "alternative": tuple(sorted(alt.items()))}, f"{name} pedestrian"))
-    control = dict(d.pop("control", {}))
+    control = dict(d.pop("control", None) or {})
     if "gamma" in control:
-        control["gamma"] = GammaParams(**control["gamma"])
+        control["gamma"] = _section(GammaParams, control["gamma"], f"{name} [control.gamma]")
     sections = {
         "road": _section(RoadSpec, d.pop("road", None), f"{name} [road]"),
         "camera": _section(CameraSpec, d.pop("camera", None), f"{name} [camera]"),
         "vehicle": _section(VehicleSpec, d.pop("vehicle", None), f"{name} [vehicle]"),
         "control": _section(ControlSpec, control, f"{name} [control]"),
         "sensing": _section(SensingSpec, d.pop("sensing", None), f"{name} [sensing]"),
+        "carla": _section(CarlaRouteSpec, d.pop("carla", None), f"{name} [carla]"),
     }
     if "variants" in d:
         d["variants"] = tuple(d["variants"])
@@ -404,28 +455,42 @@ def _scenario_from_dict(d: dict[str, Any]) -> DriveScenario:
 
 
 def load_drive_scenario(name_or_path: str | Path) -> DriveScenario:
-    """Load ``case-1|case-2`` (shipped in sim/scenarios) or a TOML file of the same form."""
+    """Load a named preset (``case-1|case-2``, shipped in sim/scenarios) or a scenario file (TOML of
+    the same form; sections other than the top level are optional). Every refusal is a ValueError
+    naming the input: a missing file, a folder, text that is not TOML, an unknown key."""
+    name = str(name_or_path)
     path = Path(name_or_path)
-    if path.suffix == ".toml" and path.exists():
-        text = path.read_text()
-    elif str(name_or_path) in DRIVE_SCENARIOS:
-        text = resources.files("trustnav.sim").joinpath(f"scenarios/{name_or_path}.toml").read_text()
+    if name in DRIVE_SCENARIOS:
+        text = resources.files("trustnav.sim").joinpath(f"scenarios/{name}.toml").read_text()
+    elif path.is_file():
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"scenario file {name}: cannot be read ({exc})") from None
+    elif path.is_dir():
+        raise ValueError(f"scenario file {name} is a folder, expected a .toml file")
+    elif path.suffix == ".toml" or path.parent != Path("."):
+        raise ValueError(f"scenario file {name} does not exist")
     else:
-        raise ValueError(
-            f"unknown driving scenario {str(name_or_path)!r}: expected one of {DRIVE_SCENARIOS} or a .toml"
-        )
+        raise ValueError(f"unknown driving scenario {name!r}: expected one of {DRIVE_SCENARIOS} or a .toml file")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{name_or_path}: not valid TOML ({exc})") from exc
+        raise ValueError(f"{name}: not valid TOML ({exc})") from None
+    if "trust_sweep" in data or "horizons" in data:
+        raise ValueError(f"{name}: a numerical scenario of the paper (run it with `trustnav scenario`), "
+                         "not a driving scenario")  # fmt: skip
     try:
         return _scenario_from_dict(data)
     except TypeError as exc:
-        raise ValueError(f"{name_or_path}: {exc}") from exc
+        raise ValueError(f"{name}: {exc}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{name}: {exc}" if name not in str(exc) else str(exc)) from exc
 
 
 def pedestrian_states(scenario: DriveScenario, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Positions (N, 2) and velocities (N, 2) of the pedestrians at time t (constant velocity)."""
+    """Positions (N, 2) and velocities (N, 2) of the pedestrians at time t (constant velocity; a
+    behaving pedestrian's state is the world's, :class:`~trustnav.sim.driving.episode.SimWorld`)."""
     p0 = np.array([p.position for p in scenario.pedestrians], dtype=float)
     v = np.array([p.velocity for p in scenario.pedestrians], dtype=float)
     return p0 + v * t, v
@@ -438,16 +503,24 @@ def street_of(scenario: DriveScenario) -> StreetSpec:
 
 
 def pedestrian_bodies(
-    scenario: DriveScenario, t: float, look_at: ArrayLike | None
+    scenario: DriveScenario,
+    t: float,
+    look_at: ArrayLike | None,
+    motions: list[PedestrianMotion | None] | None = None,
 ) -> list[tuple[body.Skeleton, body.Appearance]]:
-    """Each pedestrian's posed 3-D body at time t (head toward ``look_at`` where the scenario says)."""
+    """Each pedestrian's posed 3-D body at time t (head toward ``look_at`` where the scenario says);
+    ``motions``: the world's behaving pedestrians (their position, pose and heading), None for the rest."""
     pos, _ = pedestrian_states(scenario, t)
     street = street_of(scenario)
     out = []
-    for p, xy in zip(scenario.pedestrians, pos, strict=True):
+    for j, (p, xy) in enumerate(zip(scenario.pedestrians, pos, strict=True)):
+        m = None if motions is None else motions[j]
+        pose, yaw = (p.pose, p.body_yaw) if m is None else (m.pose(p.pose), m.body_yaw(p.body_yaw))
+        if m is not None:
+            xy = m.position
         target = look_at if (p.look_at_camera and look_at is not None) else None
         ground = (float(xy[0]), float(xy[1]), street.ground_height(xy))  # on the kerb where it stands
-        sk = body.pedestrian_skeleton(p.pose, ground, p.body_yaw, t, p.appearance, look_at=target, phase=p.phase,
+        sk = body.pedestrian_skeleton(pose, ground, yaw, t, p.appearance, look_at=target, phase=p.phase,
                                       sway=p.sway)  # fmt: skip
         out.append((sk, p.appearance))
     return out
