@@ -1,5 +1,13 @@
-"""Per-solve time of the default SQP+DAQP controller vs two SLSQP baselines.
+"""Per-step time of the default SQP+DAQP controller vs CasADi (SQP + qpOASES, IPOPT) and two SLSQP baselines.
 
+* **CasADi** (optional, ``pip install -e .[bench]``): the same problem written independently in
+  CasADi from the paper's equations (:class:`CasadiMpc`), solved by ``sqpmethod`` with qpOASES and
+  by IPOPT at every state the default controller's closed loop visits, warm-started at the same
+  plan, timed interleaved with it (each call's wall time, Python call included); the largest
+  input difference between the plans is reported (CasADi SQP and IPOPT run with tolerance
+  1e-9; sqpmethod with ``convexify_strategy="eigen-clip"``). Without casadi these columns say "n/a";
+* **compiled floor**: per step, the controller's SQP iterations times (one fused QP build + one
+  DAQP update and solve) at the returned plan, measured warm right after the step;
 * **SLSQP, authors' style** (:class:`AuthorsSlsqpSolver`): as the paper's code writes the MPC:
   one closure per pedestrian and horizon step, scipy's default ftol and maxiter, the previous
   solution as warm start (not shifted);
@@ -18,9 +26,14 @@ Prints a Markdown table and the speed-ups; ``--json FILE`` writes the rows.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
+import os
+import sys
 import time
 
+import daqp
 import numpy as np
 
 from trustnav.control import (
@@ -38,6 +51,11 @@ from trustnav.control.reference import BoundedProportionalReference
 from trustnav.control.solvers import AuthorsSlsqpSolver
 from trustnav.sim import load_scenario
 from trustnav.trust import PAPER_GAMMA_CARLA
+
+try:  # optional: the `bench` extra
+    import casadi as ca
+except ImportError:  # pragma: no cover - depends on the environment
+    ca = None
 
 
 def _setup(model_name: str, n_p: int, n_h: int, seed: int | str):
@@ -69,6 +87,189 @@ def _setup(model_name: str, n_p: int, n_h: int, seed: int | str):
     return KinematicBicycle(), x0, peds, trusts, cfg, cost
 
 
+# ---- CasADi: the same problems, written from the paper's equations (optional `bench` extra) ----
+
+
+def _ref_velocities(pos, goal, gain, v_max, n_h, dt):
+    """Bounded proportional reference u_bar(k) = Kp (goal - x_bar(k)), norm <= v_max, along its own rollout."""
+    out, p = np.empty((n_h, 2)), np.array(pos, dtype=float)
+    for k in range(n_h):
+        v = gain * (np.asarray(goal, dtype=float) - p)
+        nrm = float(np.hypot(*v))
+        out[k] = v * (v_max / nrm) if nrm > v_max else v
+        p = p + out[k] * dt
+    return out
+
+
+def _lane_reference(pos, start, goal, gain, v_max, n_h, dt):
+    """Lane waypoints: the position projected onto start -> goal, marched at the bounded speed."""
+    a, b = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+    length = float(np.hypot(*(b - a)))
+    t_hat = (b - a) / length
+    s = float(np.clip((np.asarray(pos, dtype=float) - a) @ t_hat, 0.0, length))
+    pts, speeds = np.empty((n_h + 1, 2)), np.empty(n_h + 1)
+    for k in range(n_h + 1):
+        speeds[k] = min(v_max, gain * (length - s))
+        pts[k] = a + s * t_hat
+        s = min(length, s + speeds[k] * dt)
+    return pts, math.atan2(t_hat[1], t_hat[0]), speeds
+
+
+@contextlib.contextmanager
+def _stdout_silenced():
+    """Silence fd 1 (qpOASES prints its licence banner from C++ when it first runs)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+class CasadiMpc:
+    """`proposed` in CasADi, single shooting in the inputs U, from the paper's equations: `h_quad`,
+    `cbf_imp` with constant-velocity pedestrians (`ped_predict`), gamma_j by `weight`; the single
+    integrator with ||u - u_bar||^2, or the Euler-sub-stepped kinematic bicycle with the Section IV
+    lane-tracking cost and speed rows. Solved by ``sqpmethod`` + qpOASES and by IPOPT."""
+
+    def __init__(self, model_name: str, model, cfg: MpcConfig, cost, n_p: int, sqp_options: dict | None = None) -> None:
+        self.model_name, self.model, self.cfg, self.cost, self.n_p = model_name, model, cfg, cost, n_p
+        n_h, dt = cfg.horizon, cfg.dt
+        nx = 2 if model_name == "single_integrator" else 4
+        u = ca.SX.sym("u", 2 * n_h)
+        x0 = ca.SX.sym("x0", nx)
+        peds = ca.SX.sym("peds", 2 * n_p)
+        vels = ca.SX.sym("vels", 2 * n_p)
+        decay = ca.SX.sym("decay", n_p)  # 1 - gamma_j
+        if model_name == "single_integrator":
+            ref = ca.SX.sym("ubar", 2 * n_h)
+            params = [x0, peds, vels, decay, ref]
+            xs = [x0]
+            for k in range(n_h):
+                xs.append(xs[-1] + dt * u[2 * k : 2 * k + 2])
+            obj = ca.sumsqr(u - ref)
+            extra_g = []
+        else:
+            ref = ca.SX.sym("ref", 3 * (n_h + 1) + 3)  # points, speeds, lane yaw, u_prev(2)
+            params = [x0, peds, vels, decay, ref]
+            pts = ca.reshape(ref[: 2 * (n_h + 1)], 2, n_h + 1)
+            vref = ref[2 * (n_h + 1) : 3 * (n_h + 1)]
+            yaw_ref = ref[3 * (n_h + 1)]
+            u_prev = ref[3 * (n_h + 1) + 1 :]
+            n_sub = max(1, math.ceil(dt / model.integration_step - 1e-9)) if model.integration_step else 1
+            h = dt / n_sub
+            w = cost.weights
+            xs, x = [x0], x0
+            obj = 0
+            nrm = ca.vertcat(-ca.sin(yaw_ref), ca.cos(yaw_ref))
+            for k in range(n_h):
+                st, ac = u[2 * k], u[2 * k + 1]
+                for _ in range(n_sub):
+                    x = ca.vertcat(x[0] + x[3] * ca.cos(x[2]) * h, x[1] + x[3] * ca.sin(x[2]) * h,
+                                   x[2] + x[3] * ca.tan(st) / model.wheelbase * h, x[3] + ac * h)  # fmt: skip
+                xs.append(x)
+                d_head = x[2] - yaw_ref
+                prev = u_prev if k == 0 else u[2 * k - 2 : 2 * k]
+                obj += (w.cte * ca.dot(nrm, x[:2] - pts[:, k + 1]) ** 2
+                        + w.heading * ca.atan2(ca.sin(d_head), ca.cos(d_head)) ** 2
+                        + w.speed * (x[3] - vref[k + 1]) ** 2 + w.steer * st**2 + w.accel * ac**2
+                        + w.steer_rate * (st - prev[0]) ** 2 + w.accel_rate * (ac - prev[1]) ** 2)  # fmt: skip
+            extra_g = [xs[k + 1][3] for k in range(n_h)]  # speed rows, widened to what v(0) can reach
+            t = np.arange(1, n_h + 1) * dt
+            lo_u, hi_u = model.input_bounds()
+            self._speed = (lambda v0: (np.minimum(model.speed_min, v0 + t * hi_u[1]),
+                                       np.maximum(model.speed_max, v0 + t * lo_u[1])))  # fmt: skip
+        r2 = cfg.safety_radius**2
+        cbf = []
+        for k in range(n_h):  # `cbf_imp`: h(x(k+1), q(k+1)) - (1 - gamma_j) h(x(k), q(k)) >= 0
+            for j in range(n_p):
+                q_k = peds[2 * j : 2 * j + 2] + k * dt * vels[2 * j : 2 * j + 2]
+                q_n = q_k + dt * vels[2 * j : 2 * j + 2]
+                h_n = ca.sumsqr(xs[k + 1][:2] - q_n) - r2
+                h_k = ca.sumsqr(xs[k][:2] - q_k) - r2
+                cbf.append(h_n - decay[j] * h_k)
+        g = ca.vertcat(*cbf, *extra_g)
+        self.n_cbf, self.ng = len(cbf), g.shape[0]
+        lo, hi = model.input_bounds()
+        self.lbx, self.ubx = np.tile(lo, n_h), np.tile(hi, n_h)
+        nlp = {"x": u, "p": ca.vertcat(*params), "f": obj, "g": g}
+        quiet = {"print_time": False, "error_on_fail": False}
+        self.sqp = ca.nlpsol("sqp", "sqpmethod", nlp, {
+            **quiet, "qpsol": "qpoases", "print_header": False, "print_iteration": False, "print_status": False,
+            "qpsol_options": {"printLevel": "none", "error_on_fail": False}, "max_iter": 50,
+            "tol_pr": 1e-9, "tol_du": 1e-9, "convexify_strategy": "eigen-clip", **(sqp_options or {}),
+        })  # fmt: skip
+        self.ipopt = ca.nlpsol("ipopt", "ipopt", nlp, {
+            **quiet, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-9, "ipopt.max_iter": 200,
+        })  # fmt: skip
+
+    def arguments(self, x, peds, vels, trusts, u_prev, u0) -> dict:
+        """Solver arguments at ego state x (world coordinates), warm-started at plan u0."""
+        cfg, n_h = self.cfg, self.cfg.horizon
+        gm = cfg.gamma
+        decay = 1.0 - (gm.gamma_ini + gm.delta * np.power(trusts, gm.lam))  # `weight`
+        if self.model_name == "single_integrator":
+            rf = self.cost.reference
+            ref = _ref_velocities(x[:2], self.cost.goal, rf.gain, rf.v_max, n_h, cfg.dt).ravel()
+            lbg, ubg = np.zeros(self.ng), np.full(self.ng, np.inf)
+        else:
+            rf = self.cost.reference
+            pts, yaw, sp = _lane_reference(x[:2], self.cost.start, self.cost.goal, rf.gain, rf.v_max, n_h, cfg.dt)
+            ref = np.concatenate([pts.ravel(), sp, [yaw], u_prev])  # points column by column in CasADi
+            lo, hi = self._speed(float(x[3]))
+            lbg = np.concatenate([np.zeros(self.n_cbf), lo])
+            ubg = np.concatenate([np.full(self.n_cbf, np.inf), hi])
+        p = np.concatenate([x, peds.ravel(), vels.ravel(), decay, ref])
+        return {"x0": np.asarray(u0, dtype=float).ravel(), "p": p, "lbx": self.lbx, "ubx": self.ubx,
+                "lbg": lbg, "ubg": ubg}  # fmt: skip
+
+    def first_guess(self, x) -> np.ndarray:
+        """The first plan without a previous one: the clipped reference (single integrator), or rest."""
+        n_h = self.cfg.horizon
+        if self.model_name != "single_integrator":
+            return np.zeros((n_h, 2))
+        rf = self.cost.reference
+        ubar = _ref_velocities(x[:2], self.cost.goal, rf.gain, rf.v_max, n_h, self.cfg.dt)
+        return np.clip(ubar, self.lbx[:2], self.ubx[:2])
+
+    def solve(self, which: str, args: dict) -> tuple[np.ndarray, bool, float]:
+        """(inputs (N_h, 2), success, wall seconds of the call)."""
+        solver = self.sqp if which == "sqp" else self.ipopt
+        t0 = time.perf_counter()
+        out = solver(**args)
+        dt = time.perf_counter() - t0
+        stats = solver.stats()
+        # a step below sqpmethod's min_step_size ends at a stationary point: converged, too
+        ok = bool(stats["success"]) or stats["return_status"] == "Search_Direction_Becomes_Too_Small"
+        return np.asarray(out["x"]).reshape(-1, 2), ok, dt
+
+
+def _floor(ctl: MpcController, plan: np.ndarray, iterations: int, qp: dict) -> float:
+    """Compiled floor of one step: ``iterations`` x (fused QP build + DAQP update + solve) at
+    ``plan`` (best of 3), with a DAQP workspace of the benchmark's own."""
+    p = ctl.problem
+    best = math.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        p.build(plan)
+        model = qp.get("model")
+        if model is None:
+            model = daqp.Model()
+            model.setup(p.H, p.f, p.A, p.bu, p.bl)
+            model.settings = {"primal_tol": 1e-9}
+            qp["model"] = model
+        elif p.nonlinear:
+            model.update(H=p.H, f=p.f, A=p.A, bupper=p.bu, blower=p.bl)
+        else:
+            model.update(f=p.f, A=p.A, bupper=p.bu, blower=p.bl)
+        model.solve()
+        best = min(best, time.perf_counter() - t0)
+    return max(iterations, 1) * best
+
+
 def _episode(model, x0, peds, trusts, cfg, cost, solver, steps):
     ctl = MpcController(model, cost, cfg, solver)
     vels = np.zeros_like(peds)
@@ -85,24 +286,92 @@ def _episode(model, x0, peds, trusts, cfg, cost, solver, steps):
     return np.array(path), np.array(times), failures, unconverged
 
 
-def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False):
+def _compared_episode(model, x0, peds, trusts, cfg, cost, steps, cas: CasadiMpc | None):
+    """The default controller's closed loop; at every state it visits, CasADi's SQP and IPOPT solve
+    the same problem from the same warm start (interleaved), and the compiled floor is measured."""
+    ctl = MpcController(model, cost, cfg, SqpSolver())
+    vels = np.zeros_like(peds)
+    x, plan, u_prev = x0.copy(), None, np.zeros(model.nu)
+    rec = {k: [] for k in ("t", "floor", "it", "sqp", "ipopt", "d_sqp", "d_ipopt")}
+    path, failures, unconverged, cas_fail = [x], 0, 0, {"sqp": 0, "ipopt": 0}
+    lo, hi = model.input_bounds()
+    order_rng = np.random.default_rng(0)
+    for _ in range(steps):
+        # CasADi's warm start is the controller's: its shifted previous plan, or its first guess
+        if plan is not None:
+            u0 = np.clip(np.vstack([plan[1:], plan[-1:]]), lo, hi)
+        elif cas is not None:
+            u0 = cas.first_guess(x)
+        # the three run in a shuffled order at every step (fixed seed): none always runs on caches
+        # another has just filled; the floor is measured after the controller
+        solved, args = {}, None if cas is None else cas.arguments(x, peds, vels, trusts, u_prev, u0)
+        for who in order_rng.permutation(["default", "sqp", "ipopt"] if cas is not None else ["default"]):
+            if who != "default":
+                solved[str(who)] = cas.solve(str(who), args)
+                continue
+            t0 = time.perf_counter()
+            sol = ctl.step(x, peds, vels, trusts)
+            rec["t"].append(time.perf_counter() - t0)
+        rec["it"].append(sol.iterations)
+        rec["floor"].append(_floor(ctl, sol.inputs, sol.iterations, rec.setdefault("qp", {})))
+        for which, (u_c, ok, t_c) in solved.items():
+            rec[which].append(t_c)
+            cas_fail[which] += not ok
+            if ok and sol.status is SolveStatus.OPTIMAL:
+                rec["d_" + which].append(float(np.max(np.abs(u_c - sol.inputs))))
+        failures += sol.fallback or sol.status is SolveStatus.FAILED
+        unconverged += sol.status is SolveStatus.MAX_ITER
+        plan, u_prev = sol.inputs, sol.control
+        x = model.step(x, sol.control, cfg.dt)
+        path.append(x)
+    return np.array(path), rec, failures, unconverged, cas_fail
+
+
+def _ms(values, q: float | None = None) -> float:
+    if not len(values):
+        return math.nan
+    return float((np.median(values) if q is None else np.percentile(values, q)) * 1e3)
+
+
+def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False, casadi=True):
     model, x0, peds, trusts, cfg, cost = _setup(model_name, n_p, n_h, seed)
     # warm-up (numba compilation, DAQP allocation) outside the timed episode
     _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), 2)
-    p_def, t_def, f_def, u_def = _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), steps)
-    med_d = float(np.median(t_def) * 1e3)
+    cas = None
+    if casadi and ca is not None:
+        with _stdout_silenced():  # built and run once outside the timed episode
+            cas = CasadiMpc(model_name, model, cfg, cost, len(peds))
+            for which in ("sqp", "ipopt"):
+                cas.solve(which, cas.arguments(x0, peds, np.zeros_like(peds), trusts, np.zeros(2), cas.first_guess(x0)))
+    p_def, rec, f_def, u_def, cas_fail = _compared_episode(model, x0, peds, trusts, cfg, cost, steps, cas)
+    t_def = np.array(rec["t"])
+    med_d = _ms(t_def)
     row = {
         "model": model_name,
         "case": str(seed),
         "n_p": len(peds),
         "n_h": n_h,
         "default_median_ms": med_d,
-        "default_p95_ms": float(np.percentile(t_def, 95) * 1e3),
+        "default_p95_ms": _ms(t_def, 95),
+        "default_max_ms": float(t_def.max() * 1e3),
+        "floor_median_ms": _ms(rec["floor"]),
+        "iterations_median": float(np.median(rec["it"])),
+        "iterations_max": int(np.max(rec["it"])),
         "failures": int(f_def),
         "unconverged_checked_feasible": int(u_def),
         "default_steps": len(t_def),
+        "casadi_version": None if cas is None else ca.__version__,
     }
+    for which in ("sqp", "ipopt"):
+        tag = "casadi_sqp" if which == "sqp" else "ipopt"
+        row[f"{tag}_median_ms"] = _ms(rec[which]) if cas is not None else None
+        row[f"{tag}_p95_ms"] = _ms(rec[which], 95) if cas is not None else None
+        row[f"{tag}_failures"] = cas_fail[which] if cas is not None else None
+        diffs = rec["d_" + which]
+        row[f"{tag}_max_input_diff"] = float(max(diffs)) if diffs else None
     for tag, solver in (("authors", AuthorsSlsqpSolver()), ("tuned", SlsqpSolver(per_row=per_row))):
+        if baseline_steps <= 0:
+            continue
         p_b, t_b, f_b, _ = _episode(model, x0, peds, trusts, cfg, cost, solver, baseline_steps)
         k = min(len(p_def), len(p_b))
         med_b = float(np.median(t_b) * 1e3)
@@ -117,6 +386,10 @@ def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False):
     return row
 
 
+def _fmt(v, spec: str = ".3f") -> str:
+    return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="subset, few baseline steps (< 1 min)")
@@ -124,6 +397,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=100, help="closed-loop steps of the default controller")
     ap.add_argument("--per-row-baseline", action="store_true",
                     help="tuned baseline with one closure per CBF row (slower)")  # fmt: skip
+    ap.add_argument("--no-slsqp", action="store_true", help="skip the SLSQP baselines")
+    ap.add_argument("--no-casadi", action="store_true", help="skip CasADi even when it is installed")
     args = ap.parse_args()
     if args.quick:
         cases = [("single_integrator", 2, 7, "paper-2", 20), ("single_integrator", 2, 7, 1, 20),
@@ -135,22 +410,58 @@ def main() -> None:
                 for n_h in (7, 20):
                     big = n_p * n_h >= 200 or (model == "bicycle" and n_p * n_h >= 70)
                     cases.append((model, n_p, n_h, 1, 3 if big else (10 if n_p * n_h >= 70 else 40)))
+    use_casadi = not args.no_casadi and ca is not None
+    if not use_casadi:
+        why = "--no-casadi given" if args.no_casadi else "casadi is not installed (pip install -e .[bench])"
+        print(f"NOTE: CasADi columns skipped: {why}; they read n/a.\n")
+    else:
+        print(f"CasADi {ca.__version__}: sqpmethod + qpOASES and IPOPT on the same states, interleaved.\n")
     rows = []
-    print("| model | case | N_p x N_h | SLSQP authors' style median / p95 (ms) | SLSQP tuned median / p95 (ms) | "
+    print("| model | case | N_p x N_h | default median / p95 / max (ms) | compiled floor median (ms) | SQP its "
+          "median / max | CasADi SQP median / p95 (ms) | IPOPT median / p95 (ms) | default / CasADi SQP: median, p95 | "
+          "max input diff (SQP / IPOPT) | failures (default / CasADi SQP / IPOPT) |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for model, n_p, n_h, seed, bsteps in cases:
+        r = run_case(model, n_p, n_h, seed, args.steps, 0 if args.no_slsqp else bsteps, args.per_row_baseline,
+                     use_casadi)  # fmt: skip
+        rows.append(r)
+        case = r["case"] if r["case"] == "paper-2" else f"seed {r['case']}"
+        sqp, ipo = r["casadi_sqp_median_ms"], r["ipopt_median_ms"]
+        ratio = "n/a"
+        if sqp:
+            ratio = f"{r['default_median_ms'] / sqp:.2f}, {r['default_p95_ms'] / r['casadi_sqp_p95_ms']:.2f}"
+        print(f"| {model} | {case} | {r['n_p']} x {n_h} "
+              f"| {r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f} / {r['default_max_ms']:.3f} "
+              f"| {r['floor_median_ms']:.3f} | {r['iterations_median']:.0f} / {r['iterations_max']} "
+              f"| {_fmt(sqp)} / {_fmt(r['casadi_sqp_p95_ms'])} | {_fmt(ipo, '.2f')} / {_fmt(r['ipopt_p95_ms'], '.2f')} "
+              f"| {ratio} | {_fmt(r['casadi_sqp_max_input_diff'], '.1e')} / {_fmt(r['ipopt_max_input_diff'], '.1e')} "
+              f"| {r['failures']} / {_fmt(r['casadi_sqp_failures'], 'd')} / {_fmt(r['ipopt_failures'], 'd')} |",
+              flush=True)  # fmt: skip
+    if use_casadi:
+        print("\nRatios below 1 favour trustnav (targets: median <= 0.33, p95 <= 0.5). CasADi times are the wall time "
+              "of one solver call from Python; the default's are whole controller steps. Input differences are "
+              "taken where both solvers converged (the default OPTIMAL), over the whole planned horizon.")  # fmt: skip
+    if not args.no_slsqp:
+        _slsqp_table(rows)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=2)
+
+
+def _slsqp_table(rows: list[dict]) -> None:
+    print("\n| model | case | N_p x N_h | SLSQP authors' style median / p95 (ms) | SLSQP tuned median / p95 (ms) | "
           "default median / p95 (ms) | speed-up vs authors' | vs tuned | max traj. diff (authors' / tuned) | "
           "failures (default / authors' / tuned) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for model, n_p, n_h, seed, bsteps in cases:
-        r = run_case(model, n_p, n_h, seed, args.steps, bsteps, args.per_row_baseline)
-        rows.append(r)
+    for r in rows:
         case = r["case"] if r["case"] == "paper-2" else f"seed {r['case']}"
         auth = f"{r['authors_median_ms']:.2f} / {r['authors_p95_ms']:.2f}"
         tuned = f"{r['tuned_median_ms']:.2f} / {r['tuned_p95_ms']:.2f}"
         dflt = f"{r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f}"
         diff = f"{r['authors_max_trajectory_diff']:.1e} / {r['tuned_max_trajectory_diff']:.1e}"
         fails = f"{r['failures']} / {r['authors_failures']} / {r['tuned_failures']}"
-        print(f"| {model} | {case} | {r['n_p']} x {n_h} | {auth} | {tuned} | {dflt} | {r['authors_speedup']:.0f}x "
-              f"| {r['tuned_speedup']:.0f}x | {diff} | {fails} |", flush=True)  # fmt: skip
+        print(f"| {r['model']} | {case} | {r['n_p']} x {r['n_h']} | {auth} | {tuned} | {dflt} "
+              f"| {r['authors_speedup']:.0f}x | {r['tuned_speedup']:.0f}x | {diff} | {fails} |")  # fmt: skip
     a = [r["authors_speedup"] for r in rows]
     t = [r["tuned_speedup"] for r in rows]
     ratio = [r["authors_median_ms"] / r["tuned_median_ms"] for r in rows]
@@ -159,9 +470,6 @@ def main() -> None:
           f"{min(ratio):.1f}x-{max(ratio):.1f}x the time of the tuned SLSQP. Failures count steps where the "
           "controller applied a fallback or the solver failed; trajectory differences are meaningful only "
           "where the baseline converged.")  # fmt: skip
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=2)
 
 
 if __name__ == "__main__":

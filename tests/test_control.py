@@ -183,3 +183,83 @@ def test_reference_is_bounded_and_proportional():
     assert np.linalg.norm(ref.velocity([0, 0], [30, 40])) == pytest.approx(10.0)
     v = ref.velocities([0, 0], [0, 2], 20, 0.05)
     assert np.all(np.diff(v[:, 1]) < 0)  # rollout slows down along the horizon
+
+
+# ---- issue 21 item 7: the bicycle's v >= 0 and a deterministic (iteration-budget) mode ----
+
+
+class _PlanSolver:
+    """A solver that returns a fixed plan as OPTIMAL (to drive the controller's checks)."""
+
+    def __init__(self, plan):
+        self.plan = np.asarray(plan, dtype=float)
+        self.deadlines = []
+
+    def solve(self, problem, u0, deadline=None):
+        from trustnav.control.solvers import SolveResult, SolveStatus
+
+        self.deadlines.append(deadline)
+        return SolveResult(self.plan.copy(), SolveStatus.OPTIMAL, 1, 0.0, 0.0, False)
+
+
+def test_bicycle_plan_below_rest_is_never_applied_unflagged():
+    from trustnav.control import KinematicBicycle, LaneTrackingCost
+
+    model = KinematicBicycle()
+    plan = np.tile([0.0, -6.0], (7, 1))  # full braking from 1 m/s: v < 0 from the second step on
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5)
+    ctl = MpcController(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg, _PlanSolver(plan))
+    sol = ctl.step([0.0, 0.0, 0.0, 1.0], np.zeros((0, 2)), None, [])
+    assert model.state_limit_violation(model.rollout([0.0, 0.0, 0.0, 1.0], plan, 0.1)) > 0.5
+    assert sol.state_repaired and "state limits" in sol.message
+    assert sol.state_violation <= 1e-6
+    assert sol.predicted_states[:, 3].min() >= -1e-9  # stops at rest, never reverses
+    np.testing.assert_allclose(sol.predicted_states, model.rollout([0.0, 0.0, 0.0, 1.0], sol.inputs, 0.1))
+    # a plan that keeps v >= 0 is applied as it is, unflagged
+    keep = np.tile([0.0, -1.0], (7, 1))
+    ctl2 = MpcController(model, LaneTrackingCost(start=(0, 0), goal=(100, 0)), cfg, _PlanSolver(keep))
+    sol2 = ctl2.step([0.0, 0.0, 0.0, 5.0], np.zeros((0, 2)), None, [])
+    assert not sol2.state_repaired and sol2.state_violation == 0.0
+    np.testing.assert_array_equal(sol2.inputs, keep)
+
+
+def test_bicycle_repair_plan_stops_at_rest_within_bounds():
+    from trustnav.control import KinematicBicycle
+
+    model = KinematicBicycle()
+    u = np.array([[0.1, -6.0], [0.0, -6.0], [0.0, 2.0], [0.0, -6.0]])
+    fixed = model.repair_plan([0.0, 0.0, 0.0, 0.9], u, 0.1)
+    v = model.rollout([0.0, 0.0, 0.0, 0.9], fixed, 0.1)[:, 3]
+    assert v.min() >= -1e-9 and fixed[0, 1] == pytest.approx(-6.0)  # 0.9 -> 0.3 m/s: kept
+    assert fixed[1, 1] == pytest.approx(-3.0) and fixed[2, 1] == 2.0  # brakes to rest, keeps the rest
+    np.testing.assert_array_equal(fixed[:, 0], u[:, 0])
+
+
+def test_deterministic_mode_ignores_the_wall_clock():
+    """With deterministic=True a step's result is the same however short the deadline (the
+    solver gets none); in the default mode a deadline of 1 ns cuts the solve short."""
+    from trustnav.control import SqpSolver
+
+    peds, trusts = np.array([[19.0, 20.0], [22.0, 28.0]]), [0.3, 0.9]
+
+    def run(deadline, deterministic):
+        cfg = MpcConfig(horizon=7, dt=0.05, safety_radius=3.0, deadline=deadline, deterministic=deterministic)
+        ctl = MpcController(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg, SqpSolver())
+        x, out = np.array([20.0, 5.0]), []
+        for _ in range(30):
+            sol = ctl.step(x, peds, None, trusts)
+            out.append((sol.inputs, sol.status, sol.deadline_hit))
+            x = x + sol.control * 0.05
+        return out
+
+    ref, fast = run(10.0, False), run(1e-9, True)
+    for (u_r, s_r, _), (u_f, s_f, hit) in zip(ref, fast, strict=True):
+        np.testing.assert_array_equal(u_r, u_f)
+        assert s_r is s_f and not hit
+    assert any(hit for *_, hit in run(1e-9, False))
+    spy = _PlanSolver(np.zeros((7, 2)))
+    cfg = MpcConfig(horizon=7, dt=0.05, deterministic=True)
+    MpcController(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg, spy).step([0, 0], [[5, 5]], None, [1])
+    assert spy.deadlines == [None]
+    with pytest.raises(ValueError, match="deterministic"):
+        MpcConfig(deterministic=1)

@@ -244,3 +244,52 @@ def reference_velocities(x0, goal, gain, v_max, dt, rollout, out):
         out[k, 1] = vy
         px += vx * dt
         py += vy * dt
+
+
+@njit(cache=True)
+def single_integrator_rollout(x0, u, dt, out):
+    """Positions x(0..N) = x0 + cumulative sum of u dt (the arithmetic of numpy's cumsum, then + x0)."""
+    for d in range(2):
+        out[0, d] = x0[d]
+        acc = 0.0
+        for k in range(u.shape[0]):
+            acc += u[k, d] * dt
+            out[k + 1, d] = acc + x0[d]
+
+
+@njit(cache=True)
+def bicycle_rollout(x0, u, dt, n_sub, wheelbase, out):
+    """States x(0..N) of the kinematic bicycle, ``n_sub`` Euler sub-steps per dt (as
+    :meth:`KinematicBicycle.step`, operation for operation)."""
+    px, py, yaw, v = x0[0], x0[1], x0[2], x0[3]
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = px, py, yaw, v
+    h = dt / n_sub
+    for k in range(u.shape[0]):
+        turn = math.tan(u[k, 0]) / wheelbase
+        acc = u[k, 1]
+        for _ in range(n_sub):
+            px, py, yaw, v = px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h, yaw + v * turn * h, v + acc * h
+        out[k + 1, 0], out[k + 1, 1], out[k + 1, 2], out[k + 1, 3] = px, py, yaw, v
+
+
+@njit(cache=True)
+def lane_march(a, t_hat, s, length, gain, v_max, dt, rollout, pts, speeds):
+    """Waypoints along the lane from arc length s (see ``BoundedProportionalReference.lane_waypoints``)."""
+    for k in range(speeds.shape[0]):
+        speeds[k] = min(v_max, gain * (length - s))
+        pts[k, 0] = a[0] + s * t_hat[0]
+        pts[k, 1] = a[1] + s * t_hat[1]
+        if rollout:
+            s = min(length, s + speeds[k] * dt)
+
+
+@njit(cache=True)
+def one_minus_gamma(trust, gamma_ini, delta, lam, out):
+    """1 - gamma_j by `weight` (gamma_j = gamma_ini + delta trust_j^lambda) into ``out``; False
+    (``out`` incomplete) when a trust is outside [0, 1] or NaN."""
+    for i in range(trust.shape[0]):
+        t = trust[i]
+        if not (t >= 0.0 and t <= 1.0):
+            return False
+        out[i] = 1.0 - (gamma_ini + delta * t**lam)
+    return True

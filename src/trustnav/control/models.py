@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from trustnav.control import _kernels as kern
 from trustnav.control.barrier import h_quad
 
 if TYPE_CHECKING:
@@ -100,6 +101,17 @@ class DynamicsModel:
             xs[k + 1] = self.step(xs[k], u[k], dt)
         return xs, sens
 
+    def state_limit_violation(self, states: NDArray[np.float64]) -> float:
+        """Worst violation of the model's hard state limits (e.g. the bicycle's v >= speed_min)
+        over the predicted states x_1..x_N of ``states`` (N+1, nx); 0 when every one holds
+        (default: the model has none)."""
+        return 0.0
+
+    def repair_plan(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64] | None:
+        """The plan nearest ``inputs`` (N, nu) that keeps the hard state limits from ``x0``, or
+        None when the model has no such repair (default)."""
+        return None
+
     def decided_steps(self, dt: float) -> int:
         """Leading horizon steps whose positions no input can change (their CBF rows are reported
         but left out of the QP): 0 unless the position responds to inputs only with a delay."""
@@ -163,11 +175,9 @@ class SingleIntegrator(DynamicsModel):
         return np.eye(2), dt * np.eye(2)
 
     def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
-        u = np.asarray(inputs, dtype=float).reshape(-1, 2)
+        u = np.ascontiguousarray(inputs, dtype=float).reshape(-1, 2)
         xs = np.empty((u.shape[0] + 1, 2))
-        xs[0] = x0
-        np.cumsum(u * dt, axis=0, out=xs[1:])
-        xs[1:] += xs[0]
+        kern.single_integrator_rollout(np.ascontiguousarray(x0, dtype=float).reshape(2), u, float(dt), xs)
         return xs
 
     def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -351,6 +361,14 @@ class KinematicBicycle(DynamicsModel):
             xs = self.step(xs, u, h)
         return a_tot, b_tot
 
+    def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
+        """States x_0..x_N (compiled; the arithmetic of :meth:`step`)."""
+        u = np.ascontiguousarray(inputs, dtype=float).reshape(-1, 2)
+        xs = np.empty((u.shape[0] + 1, 4))
+        x = np.ascontiguousarray(x0, dtype=float).reshape(4)
+        kern.bicycle_rollout(x, u, float(dt), self.substeps(dt), float(self.wheelbase), xs)
+        return xs
+
     def input_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return np.array([-self.steer_max, self.accel_min]), np.array([self.steer_max, self.accel_max])
 
@@ -361,6 +379,25 @@ class KinematicBicycle(DynamicsModel):
         else:
             a = min(self.accel_max, max(self.accel_min, -v / dt))  # to rest, not past it
         return np.array([0.0, a])
+
+    def state_limit_violation(self, states: NDArray[np.float64]) -> float:
+        """How far the predicted speed v(1..N) drops below ``speed_min`` (m/s; 0 when it never does):
+        the speed rows keep it only to the QP's tolerance, and a fallback plan (the shifted previous
+        plan holds its last input one step longer) can brake past rest."""
+        v = np.asarray(states, dtype=float)[1:, 3]
+        return float(max(0.0, self.speed_min - v.min())) if v.size else 0.0
+
+    def repair_plan(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
+        """``inputs`` with each acceleration raised just enough that v(k+1) = v(k) + a(k) dt stays
+        >= ``speed_min`` (within the acceleration bounds): braking stops at rest instead of reversing."""
+        u = np.array(inputs, dtype=float).reshape(-1, 2)
+        a_lo, a_hi = self.accel_min, self.accel_max
+        v = float(np.asarray(x0, dtype=float)[3])
+        for k in range(u.shape[0]):
+            if v + u[k, 1] * dt < self.speed_min:
+                u[k, 1] = min(a_hi, max(a_lo, (self.speed_min - v) / dt))
+            v = v + u[k, 1] * dt
+        return u
 
     def decided_steps(self, dt: float) -> int:
         """With one Euler step per dt the position at k = 1 depends on the state only; with

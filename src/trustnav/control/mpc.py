@@ -22,6 +22,8 @@ from trustnav.control.models import Dynamics
 from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians
 from trustnav.control.solvers import (
     FEAS_TOL,
+    MERIT_WEIGHT,
+    PRIMAL_TOL,
     AuthorsSlsqpSolver,
     SlsqpSolver,
     SolveResult,
@@ -34,6 +36,7 @@ from trustnav.trust.params import as_number
 __all__ = ["MpcController", "MpcSolution"]
 
 _wall = time.perf_counter  # (``time`` is also an argument name of MpcController.step)
+STATE_TOL = 1e-6  # tolerance on the model's hard state limits (bicycle: m/s below speed_min)
 
 
 @dataclass
@@ -55,6 +58,8 @@ class MpcSolution:
     decided_violation: float = 0.0  # worst violation of rows fixed by the current state (one-Euler-step bicycle k = 0)
     recovered: bool = False  # the solver's feasibility recovery found a hard-feasible start
     deadline_hit: bool = False  # the step deadline cut the solve short
+    state_violation: float = 0.0  # worst break of the model's hard state limits (bicycle: v < speed_min), m/s
+    state_repaired: bool = False  # the chosen plan broke a state limit and was repaired or replaced by braking
 
 
 class MpcController:
@@ -91,6 +96,8 @@ class MpcController:
         x = np.zeros(self.model.nx)
         p.set_stage(x, [[1e3, 1e3]], None, [0.0])
         p.build(p.initial_guess())
+        p.compiled_steps(p.initial_guess().copy(), 1, 1.0, PRIMAL_TOL, MERIT_WEIGHT)  # loads the compiled SQP loop
+        p._qp_structs = None  # no warm start from this stand-in problem
         p.set_stage(x, np.zeros((0, 2)), None, [])
 
     def reset(self) -> None:
@@ -185,10 +192,15 @@ class MpcController:
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
         p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
-        shifted = None if self._plan is None else np.vstack([self._plan[1:], self._plan[-1:]])
+        shifted = None
+        if self._plan is not None:  # the previous plan shifted by one step, its last input held
+            shifted = np.empty_like(self._plan)
+            shifted[:-1] = self._plan[1:]
+            shifted[-1] = self._plan[-1]
         u0 = p.initial_guess() if shifted is None else shifted
-        deadline = self.config.step_deadline
-        res: SolveResult = self.solver.solve(p, u0, deadline=max(deadline - (_wall() - t0), 0.0))
+        # deterministic: the solver's iteration budget alone bounds the step (no wall clock)
+        deadline = None if self.config.deterministic else max(self.config.step_deadline - (_wall() - t0), 0.0)
+        res: SolveResult = self.solver.solve(p, u0, deadline=deadline)
         plan, status, source = res.inputs, res.status, "solver"
         fv, viol, message = res.first_row_violation, res.cbf_violation, res.message
         if res.status is not SolveStatus.OPTIMAL:
@@ -208,6 +220,15 @@ class MpcController:
                 message = f"{source} applied (violation {viol:.3g}) instead of the solver's plan: " + (
                     f"{res.status.value}: {res.message}" if res.message else res.status.value
                 )
+        predicted = self.model.rollout(x, plan, self.config.dt)
+        broken = self.model.state_limit_violation(predicted)
+        state_violation, repaired = broken, False
+        if broken > STATE_TOL:  # never applied unflagged: repaired, or braking, whichever ranks first
+            plan, source, status, fv, viol, state_violation, predicted, note = self._repair(
+                x, plan, source, status, fv, viol, broken
+            )
+            repaired = True
+            message = f"{message}; {note}" if message else note
         decided = p.decided_violation() if p.n_decided else 0.0  # the same at every plan
         if decided > FEAS_TOL:
             note = f"CBF rows fixed by the current state (no input changes them) violated by {decided:.3g}"
@@ -218,7 +239,7 @@ class MpcController:
         return MpcSolution(
             control=plan[0].copy(),
             inputs=plan.copy(),
-            predicted_states=self.model.rollout(x, plan, self.config.dt),
+            predicted_states=predicted,
             status=status,
             fallback=source != "solver",
             slack_used=viol > FEAS_TOL,
@@ -231,4 +252,27 @@ class MpcController:
             decided_violation=decided,
             recovered=res.recovered,
             deadline_hit=res.deadline_hit,
+            state_violation=state_violation,
+            state_repaired=repaired,
         )
+
+    def _repair(self, x, plan, source, status, fv, viol, broken):
+        """A plan that breaks the model's hard state limits (the bicycle's v >= speed_min) by
+        ``broken``: the model's repair of it and braking to rest, checked exactly against the CBF
+        rows and ranked (plans that still break a limit last, then :func:`rank_key`)."""
+        p, dt = self.problem, self.config.dt
+        fixed = self.model.repair_plan(x, plan, dt)
+        cands = ([("repaired", fixed)] if fixed is not None else []) + [("braking", p.braking_plan())]
+        scored = []
+        for i, (name, u) in enumerate(cands):
+            states = self.model.rollout(x, u, dt)
+            sv = self.model.state_limit_violation(states)
+            chk = p.evaluate(u)
+            scored.append(((sv > STATE_TOL, *rank_key(chk)), i, name, u, chk, states, sv))
+        _, _, name, u, chk, states, sv = min(scored, key=lambda r: (r[0], r[1]))
+        what = "the shifted previous plan" if source == "previous_plan" else f"the {source} plan"
+        done = "repaired (braking stops at rest)" if name == "repaired" else "braking to rest applied"
+        note = f"{what} broke the model's state limits (v below its minimum) by {broken:.3g}: {done}"
+        if name == "braking":
+            source, status = "braking", SolveStatus.FALLBACK
+        return u, source, status, chk.first_row, chk.worst, sv, states, note

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
+from trustnav.control import _qp
 from trustnav.control.barrier import TIMINGS, Barrier, PedestrianBarrier, Timing, cbf_rows
 from trustnav.control.costs import (
     Cost,
@@ -62,7 +63,12 @@ class MpcConfig:
     """Horizon N_h, step dt, margin R, gamma(trust) of `weight`, CBF timing, latency (s), the
     wall-clock deadline of one controller step (s; None = half of dt), and ``confidence``: the
     probability with which R is kept from a pedestrian whose state comes with a covariance
-    (:func:`~trustnav.control.barrier.uncertainty_margins`; unused for exact states)."""
+    (:func:`~trustnav.control.barrier.uncertainty_margins`; unused for exact states).
+
+    ``deterministic``: no wall-clock deadline; each step is bounded by the solver's iteration
+    budget alone (``SqpSolver``'s ``max_iter``, ``max_restarts`` and ``phase1_qps``), so its result
+    depends on its inputs only, never on the machine's load (reproducible runs, tests, offline
+    studies). The default (False) is the real-time mode: the deadline cuts a solve short."""
 
     horizon: int = 7
     dt: float = 0.05
@@ -72,6 +78,7 @@ class MpcConfig:
     latency: float = 0.0
     deadline: float | None = None
     confidence: float = 0.95
+    deterministic: bool = False
 
     @property
     def step_deadline(self) -> float:
@@ -92,6 +99,8 @@ class MpcConfig:
             raise ValueError(f"deadline must be a positive finite time in seconds (or None), got {self.deadline!r}")
         if not 0.5 <= self.confidence < 1.0:
             raise ValueError(f"confidence must be in [0.5, 1), got {self.confidence!r}")
+        if not isinstance(self.deterministic, bool):
+            raise ValueError(f"deterministic must be True or False, got {self.deterministic!r}")
 
 
 MAX_COORDINATE = 1e12  # m; beyond it float64 spacing exceeds 0.1 mm
@@ -252,6 +261,9 @@ class MpcProblem:
         self.stage: Any = None
         self.radii = np.zeros(0)
         self.r2 = np.zeros(0)
+        self._constants: tuple | None = None  # what a fused kernel takes from the frozen model and cost
+        self._plain_radii = False  # radii and r2 hold R for every pedestrian (no margins)
+        self._qp_structs: _qp.QpStructs | None = None  # DAQP's C structures over H, f, A, bu, bl
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -308,10 +320,20 @@ class MpcProblem:
         x0[:2] = 0.0
         self.x0 = np.ascontiguousarray(x0)
         self.peds = np.ascontiguousarray(peds - self.origin)
-        self.one_minus_gamma = np.ascontiguousarray(1.0 - gamma(tr, self.config.gamma))
+        gp = self.config.gamma
+        omg = np.empty(tr.shape[0])
+        if not kern.one_minus_gamma(tr, gp.gamma_ini, gp.delta, gp.lam, omg):
+            gamma(tr, gp)  # raises, naming the trusts outside [0, 1]
+        self.one_minus_gamma = omg
         radius = self.config.safety_radius
-        self.radii = np.full(tr.shape[0], radius) if margins is None else radius + margins
-        self.r2 = np.ascontiguousarray(self.radii * self.radii)
+        if margins is not None:
+            self.radii = radius + margins
+            self.r2 = np.ascontiguousarray(self.radii * self.radii)
+            self._plain_radii = False
+        elif not (self._plain_radii and self.radii.shape[0] == tr.shape[0]):  # else: unchanged, kept
+            self.radii = np.full(tr.shape[0], radius)
+            self.r2 = np.ascontiguousarray(self.radii * self.radii)
+            self._plain_radii = True
         if self.peds.shape[0] != self.n_p:
             self._resize(self.peds.shape[0])
         self.u_prev = np.zeros(self.model.nu) if u_prev is None else np.asarray(u_prev, dtype=float).copy()
@@ -334,6 +356,45 @@ class MpcProblem:
         if self.n_decided:
             self.bl[self.n : self.n + self.n_decided] = -kern.INF  # decided rows: nothing to choose
         return cost
+
+    def compiled_steps(
+        self, u: NDArray[np.float64], max_it: int, tol: float, primal_tol: float, merit_weight: float
+    ) -> tuple[int, int, float, int, NDArray[np.float64]] | None:
+        """Up to ``max_it`` SQP iterations from ``u`` (changed in place) in one compiled call: full
+        steps for the single integrator (:func:`~trustnav.control._qp.single_integrator_full_steps`),
+        steps with a line search on the L1 merit (weight ``merit_weight``) for the bicycle
+        (:func:`~trustnav.control._qp.bicycle_steps`). None where there is no compiled loop (other
+        models and costs, user barriers, no rows, DAQP's C API unavailable). Returns (iterations,
+        state, cost, DAQP flag, the iterates whose QP was solved)."""
+        fused = self._fused
+        if fused is None or self.n_user or self.m == 0 or not _qp.AVAILABLE:
+            return None
+        if fused is not _fused_single_integrator and fused is not _fused_bicycle:
+            return None
+        qs = self._qp_structs
+        if qs is None or not qs.holds(self.H, self.f, self.A, self.bu, self.bl) or qs.settings[0] != primal_tol:
+            qs = self._qp_structs = _qp.QpStructs(self.H, self.f, self.A, self.bu, self.bl, primal_tol)
+        c = self.config
+        seen = np.empty((max_it, self.n_h, 2))
+        tail = (qs.sense, qs.x, qs.lam, qs.result_words, *qs.addresses)
+        if fused is _fused_single_integrator:
+            it, state, cost, flag = _qp.single_integrator_full_steps(
+                max_it, tol, u, seen, self.x0, self.stage, self.peds, self.vels, self.one_minus_gamma, self.r2,
+                c.dt, self.timing_code, self.n_obs, self.ulo, self.uhi, self.xs, self.sens, self.f, self.A, self.bl,
+                self.bu, self.g, *tail,
+            )  # fmt: skip
+        else:
+            if self._constants is None:
+                fused(self, u)  # gathers the constants (the buffers are rebuilt below)
+            w, wheelbase, vmin, vmax, dt, n_sub = self._constants
+            st = self.stage
+            it, state, cost, flag = _qp.bicycle_steps(
+                max_it, tol, merit_weight, u, seen, np.empty_like(u), self.x0, self.u_prev, st.points, st.yaw,
+                st.speed, w, wheelbase, vmin, vmax, self.peds, self.vels, self.one_minus_gamma, self.r2, dt, n_sub,
+                self.timing_code, self.n_obs, self.m_cbf, self.n_decided, self.ulo, self.uhi, self.xs, self.sens,
+                self.H, self.f, self.A, self.bl, self.bu, self.g, *tail,
+            )  # fmt: skip
+        return it, state, cost, flag, seen[: it - 1 if state < 0 else it]
 
     def _build_parts(self, u: NDArray[np.float64]) -> float:
         """:meth:`build` through the protocols: model sensitivities, cost, pedestrian rows,
@@ -494,13 +555,19 @@ def _fused_single_integrator(p: MpcProblem, u: NDArray[np.float64]) -> float:
 
 
 def _fused_bicycle(p: MpcProblem, u: NDArray[np.float64]) -> float:
-    c = p.config
-    m: KinematicBicycle = p.model  # type: ignore[assignment]
+    constants = p._constants
+    if constants is None:  # the model's and cost's parameters are frozen: gathered once per problem
+        m: KinematicBicycle = p.model  # type: ignore[assignment]
+        c = p.config
+        constants = (p.cost.weights.as_array(), float(m.wheelbase), float(m.speed_min), float(m.speed_max),
+                     float(c.dt), m.substeps(c.dt))  # fmt: skip
+        p._constants = constants
+    w, wheelbase, vmin, vmax, dt, n_sub = constants
     st = p.stage
     return kern.bicycle_qp(
-        p.x0, u, p.u_prev, st.points, st.yaw, st.speed, p.cost.weights.as_array(), m.wheelbase, m.speed_min,
-        m.speed_max, p.peds, p.vels, p.one_minus_gamma, p.r2, c.dt, m.substeps(c.dt), p.timing_code,
-        p.n_obs, p.m_cbf, p.ulo, p.uhi, p.xs, p.sens, p.H, p.f, p.A, p.bl, p.bu, p.g,
+        p.x0, u, p.u_prev, st.points, st.yaw, st.speed, w, wheelbase, vmin, vmax, p.peds, p.vels,
+        p.one_minus_gamma, p.r2, dt, n_sub, p.timing_code, p.n_obs, p.m_cbf, p.ulo, p.uhi, p.xs, p.sens, p.H, p.f,
+        p.A, p.bl, p.bu, p.g,
     )  # fmt: skip
 
 

@@ -14,7 +14,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control._kernels import reference_velocities
+from trustnav.control._kernels import lane_march, reference_velocities
 
 __all__ = ["BoundedProportionalReference"]
 
@@ -74,11 +74,8 @@ class BoundedProportionalReference:
         s = float(np.clip((np.asarray(position, dtype=float) - a) @ t_hat, 0.0, length))
         pts = np.empty((steps + 1, 2))
         speeds = np.empty(steps + 1)
-        for k in range(steps + 1):
-            speeds[k] = self.speed(length - s)
-            pts[k] = a + s * t_hat
-            if self.mode == "rollout":
-                s = min(length, s + speeds[k] * dt)
+        rollout = self.mode == "rollout"
+        lane_march(a, t_hat, s, length, float(self.gain), float(self.v_max), float(dt), rollout, pts, speeds)
         if self.mode == "hold":
             speeds[:] = speeds[0]
             pts[:] = pts[0] + np.arange(steps + 1)[:, None] * speeds[0] * dt * t_hat

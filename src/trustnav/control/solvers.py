@@ -33,6 +33,7 @@ __all__ = [
 DEADLINE = "deadline"  # QP flag: not started, it would not end before the deadline
 FEAS_TOL = 1e-6  # tolerance on CBF rows (units of the barrier, m^2) to call a solution feasible
 PRIMAL_TOL = 1e-9  # DAQP's tolerance on the QP's rows
+MERIT_WEIGHT = 1e4  # weight of the CBF violation in the L1 merit of the line search (hard rows)
 
 
 class SolveStatus(enum.Enum):
@@ -447,6 +448,7 @@ class SqpSolver:
         recovered: bool = False
         deadline_hit: bool = False
         second_chance: bool = False
+        final_built: bool = False  # the problem's buffers hold the data at u, s.cost its cost
         message: str = ""
 
     def solve(self, problem: MpcProblem, u0: NDArray[np.float64], deadline: float | None = None) -> SolveResult:
@@ -465,7 +467,8 @@ class SqpSolver:
             until_recovery=None if deadline is None else t0 + 0.8 * deadline,
             memo=self._Recovery(self.phase1_qps if phase1 else 0),
         )
-        for s.it in range(1, self.max_iter + 1):
+        first, done = self._compiled_steps(s)
+        for s.it in range(first, self.max_iter + 1 if not done else first):
             if s.until is not None and time.perf_counter() > s.until:
                 s.deadline_hit = True
                 break
@@ -485,6 +488,40 @@ class SqpSolver:
                 s.converged = True
                 break
         return self._result(s, deadline, t0)
+
+    def _compiled_steps(self, s: SqpSolver._State) -> tuple[int, bool]:
+        """The first iterations in one compiled call (:meth:`MpcProblem.compiled_steps`) while the
+        hard QP is feasible: the general loop's arithmetic (:meth:`_iterate_qp`,
+        :meth:`_take_step`: full steps for a linear problem, up to ``full_step_iterations``; the
+        L1-merit line search for a nonlinear one) without its per-iteration Python work. Used
+        where the deadline cannot cut them short (it is checked between QPs otherwise): twice the
+        last QP's time, times the iterations, fits. Returns (iteration to continue at, solve
+        done); an infeasible QP hands the iterate over, its QP data built (``fresh``), to the
+        general loop, which solves that QP again and recovers."""
+        p = s.p
+        key = (p.kind, p.n, p.m, False)
+        if self._models.get(key) is None or p.m == 0 or self._owners.get(key) is not p:
+            return 1, False  # first QP of this size or owner: the general path sets DAQP up
+        last = self.max_iter if p.nonlinear else min(self.max_iter, self.full_step_iterations)
+        until = s.until
+        if until is not None and time.perf_counter() + 2.0 * last * self._qp_seconds.get(key, math.inf) >= until:
+            return 1, False
+        u = s.u.copy()
+        out = p.compiled_steps(u, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT)
+        if out is None:
+            return 1, False
+        it, state, s.cost, _, iterates = out
+        s.seen.extend(iterates)
+        s.it, s.u = it, u
+        if state < 0:
+            s.fresh = True
+            return it, False
+        s.step = u  # not None: a QP was solved (the step itself is not used after this)
+        s.fresh = p.nonlinear  # the buffers hold the data at the last accepted trial
+        if state > 0:  # the buffers hold the data at the final iterate: its exact check needs no build
+            s.converged = s.final_built = True
+            return it, True
+        return last + 1, False
 
     def _iterate_qp(self, s: SqpSolver._State):
         """The QP at the current iterate; when the hard QP is infeasible, the feasibility recovery
@@ -524,10 +561,10 @@ class SqpSolver:
         alpha = 1.0
         if p.nonlinear or s.it > self.full_step_iterations:
             viol0 = float(np.maximum(0.0, -p.g).sum())
-            mu = 10.0 * self.slack_penalty if s.slack is not None else 1e4
+            mu = 10.0 * self.slack_penalty if s.slack is not None else MERIT_WEIGHT
             merit0 = s.cost + mu * viol0
             for _ in range(8):
-                trial = np.clip(s.u + alpha * d, p.ulo, p.uhi)
+                trial = np.minimum(np.maximum(s.u + alpha * d, p.ulo), p.uhi)  # np.clip, without its overhead
                 c1 = p.build(trial)
                 if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
                     break
@@ -542,7 +579,10 @@ class SqpSolver:
         returned. Otherwise the best checked plan wins, after every candidate start and a
         restoration (the feasibility SQP from the best plan) have had their chance."""
         p, best, memo = s.p, s.best, s.memo
-        final = p.evaluate(s.u) if math.isfinite(float(s.u.sum())) else None
+        if s.final_built:
+            final = p.check_built(s.cost)
+        else:
+            final = p.evaluate(s.u) if math.isfinite(float(s.u.sum())) else None
         done = s.converged and final is not None and (final.worst <= FEAS_TOL or s.slack is not None)
         relaxation_beaten = False
         if done and s.slack is not None and final.worst > FEAS_TOL:

@@ -1,0 +1,220 @@
+"""DAQP's C entry point ``daqp_quadprog``, called from compiled SQP loops.
+
+The SQP of :class:`~trustnav.control.solvers.SqpSolver` spends most of a control step outside the
+QP when each iteration goes through Python (kernel dispatch, DAQP's Python wrapper, the step).
+For the fused single-integrator and bicycle problems, :func:`single_integrator_full_steps` (full
+steps) and :func:`bicycle_steps` (L1-merit line search) run them in one compiled call: build the
+QP (`cbf_imp` linearised, the fused kernels of :mod:`trustnav.control._kernels`), solve it with
+DAQP's C API, step, repeat. The three structures of that API (problem, settings, result) are
+filled here with the layout of daqp 0.11's ``types.h`` / ``api.h``; the layout is checked at
+import against DAQP's own defaults, and a mismatch (another DAQP build) leaves :data:`AVAILABLE`
+False, so the solver keeps its Python path.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import daqp
+import llvmlite.binding as llvm
+import numpy as np
+from numba import njit, types
+from numpy.typing import NDArray
+
+from trustnav.control._kernels import INF, bicycle_qp, single_integrator_qp
+
+__all__ = ["AVAILABLE", "QpStructs", "bicycle_steps", "single_integrator_full_steps"]
+
+_SETTINGS_WORDS = 17  # sizeof(DAQPSettings) = 136 bytes
+_PROBLEM_WORDS = 10  # sizeof(DAQPProblem) = 80 bytes
+_RESULT_WORDS = 8  # sizeof(DAQPResult) = 64 bytes
+_ACTIVE, _LOWER = 1, 2  # DAQP's constraint state bits (constants.h)
+
+
+def _load():
+    """DAQP's C library: ``daqp_default_settings`` through ctypes, and ``daqp_quadprog`` as an
+    external symbol of the compiled loops (bound by name, so numba can cache them)."""
+    try:
+        lib = ctypes.CDLL(daqp.__file__)
+        defaults = lib.daqp_default_settings
+        lib.daqp_quadprog  # noqa: B018 - the symbol must exist
+        llvm.load_library_permanently(daqp.__file__)
+    except (OSError, AttributeError, RuntimeError):
+        return None
+    defaults.argtypes = [ctypes.c_void_p]
+    defaults.restype = None
+    return defaults
+
+
+_defaults = _load()
+# daqp_quadprog(DAQPResult*, DAQPProblem*, DAQPSettings*), the addresses passed as integers
+_quadprog = types.ExternalFunction("daqp_quadprog", types.void(types.intp, types.intp, types.intp))
+
+
+def _default_settings() -> NDArray[np.float64] | None:
+    """DAQPSettings as DAQP fills it, or None when its layout is not the expected one (or the
+    library could not be loaded)."""
+    if _defaults is None:
+        return None
+    buf = np.zeros(_SETTINGS_WORDS)
+    _defaults(buf.ctypes.data)
+    words = buf.view(np.int32)
+    # primal_tol, dual_tol, cycle_tol, iter_limit at their offsets (DAQP's documented defaults)
+    if buf[0] != 1e-6 or buf[1] != 1e-12 or words[10] != 10 or words[11] != 10000:
+        return None
+    return buf
+
+
+_DEFAULTS = _default_settings()
+AVAILABLE = _DEFAULTS is not None
+
+
+class QpStructs:
+    """DAQPProblem, DAQPSettings and DAQPResult for the QP held in ``h, f, a, bu, bl`` (arrays
+    the problem fills in place: the structures point at them, nothing is copied per solve)."""
+
+    def __init__(self, h, f, a, bu, bl, primal_tol: float) -> None:
+        if not AVAILABLE:
+            raise RuntimeError("DAQP's C API has an unexpected layout: use the Python path")
+        n, m = f.shape[0], bu.shape[0]
+        self.arrays = (h, f, a, bu, bl)  # kept alive while the structures point at them
+        self.settings = _DEFAULTS.copy()
+        self.settings[0] = primal_tol
+        self.sense = np.zeros(m, dtype=np.int32)
+        self.x = np.zeros(n)
+        self.lam = np.zeros(m)
+        self.problem = np.zeros(_PROBLEM_WORDS, dtype=np.int64)
+        words = self.problem.view(np.int32)
+        words[0], words[1], words[2] = n, m, n  # n, m (simple bounds + rows), ms (simple bounds)
+        self.problem[2:9] = [h.ctypes.data, f.ctypes.data, a.ctypes.data, bu.ctypes.data, bl.ctypes.data,
+                             self.sense.ctypes.data, 0]  # fmt: skip
+        self.result = np.zeros(_RESULT_WORDS, dtype=np.int64)
+        self.result[0], self.result[1] = self.x.ctypes.data, self.lam.ctypes.data
+        self.result_words = self.result.view(np.int32)  # exitflag at word 8
+        self.addresses = (self.result.ctypes.data, self.problem.ctypes.data, self.settings.ctypes.data)
+
+    def holds(self, h, f, a, bu, bl) -> bool:
+        """True when the structures point at these very arrays."""
+        x = self.arrays
+        return x[0] is h and x[1] is f and x[2] is a and x[3] is bu and x[4] is bl
+
+
+@njit(cache=True)
+def single_integrator_full_steps(
+    max_it, tol, u, seen, x0, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat,
+    bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+):  # fmt: skip
+    """Full SQP steps u <- u + dU of the single-integrator problem from ``u`` (changed in place),
+    as :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them: the QP at u,
+    solved by DAQP; stop when max |dU| < tol. The iterate of each QP is copied to ``seen``.
+
+    Returns (iterations, state, cost at the last built point, DAQP exit flag): state 1 converged
+    (the QP buffers hold the data at the final u, the cost is its cost), 0 ``max_it`` iterations
+    without converging, -1 the QP at u failed (u is that iterate, the QP buffers hold its data).
+    DAQP starts from the working set of the last QP it solved (its multipliers ``lam``, kept from
+    one control step to the next), as a ``daqp.Model`` does."""
+    n_h = u.shape[0]
+    cost = 0.0
+    flag = 0
+    for it in range(1, max_it + 1):
+        cost = single_integrator_qp(
+            x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+        )
+        _warm_start(sense, lam)
+        _quadprog(result_addr, problem_addr, settings_addr)
+        flag = result_words[8]
+        if flag < 0:
+            return it, -1, cost, flag
+        for k in range(n_h):
+            seen[it - 1, k, 0] = u[k, 0]
+            seen[it - 1, k, 1] = u[k, 1]
+        step = 0.0
+        for k in range(n_h):
+            for d in range(2):
+                dk = xsol[2 * k + d]
+                u[k, d] = u[k, d] + dk
+                if abs(dk) > step:
+                    step = abs(dk)
+        if step < tol:  # converged: the QP buffers and the cost at the final iterate, for its check
+            cost = single_integrator_qp(
+                x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+            )
+            return it, 1, cost, flag
+    return max_it, 0, cost, flag
+
+
+@njit(cache=True)
+def _warm_start(sense, lam):
+    for i in range(sense.shape[0]):  # the working set of the last QP solved (its multipliers)
+        lam_i = lam[i]
+        sense[i] = _ACTIVE if lam_i > 1e-12 else (_ACTIVE | _LOWER if lam_i < -1e-12 else 0)
+
+
+@njit(cache=True)
+def _violation(g):
+    total = 0.0
+    for i in range(g.shape[0]):
+        if g[i] < 0.0:
+            total -= g[i]
+    return total
+
+
+@njit(cache=True)
+def bicycle_steps(
+    max_it, tol, mu, u, seen, trial, x0, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds,
+    vels, omg, r2, dt, n_sub, timing, stride, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+    sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+):  # fmt: skip
+    """SQP iterations of the kinematic-bicycle problem from ``u`` (changed in place), as
+    :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them for a nonlinear
+    problem: the QP at u (DAQP, warm-started as in :func:`single_integrator_full_steps`), then a
+    backtracking line search (at most 8 halvings) on the L1 merit cost + mu * sum max(0, -row);
+    stop when alpha max |dU| < tol. Returns as :func:`single_integrator_full_steps`."""
+    n_h = u.shape[0]
+    n = 2 * n_h
+    cost = 0.0
+    flag = 0
+    fresh = False
+    for it in range(1, max_it + 1):
+        if not fresh:
+            cost = bicycle_qp(
+                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
+                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+            )  # fmt: skip
+            for r in range(n_decided):
+                bl[n + r] = -INF
+        _warm_start(sense, lam)
+        _quadprog(result_addr, problem_addr, settings_addr)
+        flag = result_words[8]
+        if flag < 0:
+            return it, -1, cost, flag
+        for k in range(n_h):
+            seen[it - 1, k, 0] = u[k, 0]
+            seen[it - 1, k, 1] = u[k, 1]
+        merit0 = cost + mu * _violation(g)
+        alpha = 1.0
+        c1 = cost
+        for _ in range(8):
+            for k in range(n_h):
+                for d in range(2):
+                    trial[k, d] = min(max(u[k, d] + alpha * xsol[2 * k + d], ulo[d]), uhi[d])
+            c1 = bicycle_qp(
+                x0, trial, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
+                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+            )  # fmt: skip
+            for r in range(n_decided):
+                bl[n + r] = -INF
+            if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
+                break
+            alpha *= 0.5
+        step = 0.0
+        for k in range(n_h):
+            for d in range(2):
+                a = abs(xsol[2 * k + d])
+                if a > step:
+                    step = a
+                u[k, d] = trial[k, d]
+        cost, fresh = c1, True  # the buffers hold the data at the accepted trial
+        if alpha * step < tol:
+            return it, 1, cost, flag
+    return max_it, 0, cost, flag
