@@ -8,12 +8,28 @@ search over N frames of a video (people already found are followed from their la
 
     python benchmarks/bench_perception.py                  # both modes on the sequences
     python benchmarks/bench_perception.py --json out.json
+    python benchmarks/bench_perception.py --realtime --json rt.json   # issue 20: reference vs real time
+
+``--realtime`` measures, per input and in the same run, the offline **reference** (every frame
+through the full pipeline, as ``trustnav estimate`` does) and the **realtime** mode
+(:class:`~trustnav.perception.realtime.RealtimePoseBackend` behind a
+:class:`~trustnav.perception.streaming.StreamingPerceiver`, frames handed over at the stream's
+rate ``--stream-fps``, the newest frame taken, older ones dropped). Rows (``--json``): ``name``,
+``mode`` (reference | realtime), ``fps`` (frames processed per second of wall time; for the
+realtime mode also ``throughput_fps``, frames per second when handed over as fast as it takes
+them), ``recall_vs_reference`` (share of the reference's person-frames the realtime mode also
+reports, box IoU >= 0.5; a dropped frame reports nobody), ``first_detection_s`` (worst delay, in
+stream seconds, from a person's first reference detection to the realtime mode's), ``traits_within_0_1``
+(share of the person-frames found by both whose eye contact and phone use agree within 0.1),
+``latency_ms_p95``, ``dropped`` and the load average during the run. The inputs: walk_a (640x480)
+and walk_a enlarged to 1280x720 (a dash-cam-sized stand-in: the shared data have no 1280x720 clip).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -59,8 +75,117 @@ def run(name: str, paths: list[Path], video: bool, scan_frames: int, workers: in
     }
 
 
+def _people(out: list) -> list[dict]:
+    return [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone} for tp in out]
+
+
+def run_reference(frames: list, fps: float, model: LookingModel) -> tuple[list[list[dict]], float]:
+    """Every frame through the offline pipeline; per frame its people, and the frames per second."""
+    backend = MediaPipePoseBackend(video=True)
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
+    pipeline(frames[0])  # warm-up, then start again
+    backend.reset()
+    pipeline.tracker = PersonTracker(fps=fps)
+    t0 = time.perf_counter()
+    out = [_people(pipeline(f, time=i / fps)) for i, f in enumerate(frames)]
+    seconds = time.perf_counter() - t0
+    backend.close()
+    return out, len(frames) / seconds
+
+
+def run_realtime(frames: list, fps: float, model: LookingModel) -> dict:
+    """The realtime mode: a throughput pass (frames handed over as fast as it takes them), then a
+    stream at ``fps`` through the StreamingPerceiver (newest frame first, drops counted)."""
+    from trustnav.perception.realtime import RealtimePoseBackend
+    from trustnav.perception.streaming import StreamingPerceiver
+
+    backend = RealtimePoseBackend()
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
+    t0 = time.perf_counter()
+    for i, f in enumerate(frames):
+        pipeline(f, time=i / fps)
+    throughput = len(frames) / (time.perf_counter() - t0)
+    backend.reset()
+    pipeline.tracker = PersonTracker(fps=fps)
+    per_frame: list[list[dict] | None] = [None] * len(frames)
+    with StreamingPerceiver(pipeline, mode="realtime") as stream:
+        start = time.perf_counter()
+        for i, f in enumerate(frames):
+            time.sleep(max(0.0, start + i / fps - time.perf_counter()))  # the camera's clock
+            stream.submit(f, i / fps)
+            for r in stream.poll():
+                per_frame[r.index] = _people(r.people)
+        results = stream.drain(timeout=30.0)
+        for r in results:
+            per_frame[r.index] = _people(r.people)
+        wall = time.perf_counter() - start
+        stats = stream.stats
+    backend.close()
+    processed = sum(p is not None for p in per_frame)
+    return {"per_frame": per_frame, "fps": processed / wall, "throughput_fps": throughput,
+            "latency_ms_p95": 1e3 * stats["latency_p95_s"], "dropped": stats["dropped"],
+            "searches": backend.stats["searches"], "search_mean_s": backend.stats["search_mean_s"]}  # fmt: skip
+
+
+def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps: float) -> dict:
+    """recall_vs_reference, first_detection_s and traits_within_0_1 (see the module docstring)."""
+    from trustnav.perception.types import box_iou
+
+    total = hit = agree = both = 0
+    first_ref: dict[int, int] = {}
+    first_rt: dict[int, int] = {}
+    for k, (ref, rt) in enumerate(zip(reference, realtime, strict=True)):
+        for p in ref:
+            total += 1
+            first_ref.setdefault(p["id"], k)
+            best = max(rt or [], key=lambda q: box_iou(p["bbox"], q["bbox"]), default=None)
+            if best is None or box_iou(p["bbox"], best["bbox"]) < 0.5:
+                continue
+            hit += 1
+            first_rt.setdefault(p["id"], k)
+            pairs = [(p["eye"], best["eye"]), (p["phone"], best["phone"])]
+            if all(np.isfinite(a) and np.isfinite(b) for a, b in pairs):
+                both += 1
+                agree += all(abs(a - b) <= 0.1 for a, b in pairs)
+    delays = [(first_rt.get(i, len(reference)) - k) / fps for i, k in first_ref.items()]
+    return {"recall_vs_reference": hit / total if total else float("nan"),
+            "first_detection_s": max(delays, default=0.0),
+            "traits_within_0_1": agree / both if both else float("nan")}  # fmt: skip
+
+
+def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
+    import cv2
+
+    walk = [f.frame for f in iter_frames(sorted((SHARED / "data" / "sequences" / "walk_a").glob("*.png")))]
+    big = [np.ascontiguousarray(cv2.resize(f, (1280, 960), interpolation=cv2.INTER_CUBIC)[120:840]) for f in walk]
+    rows = []
+    for name, frames in (("walk_a", walk), ("walk_a_1280x720", big)):
+        load0 = os.getloadavg()[0]
+        reference, ref_fps = run_reference(frames, args.stream_fps, model)
+        rt = run_realtime(frames, args.stream_fps, model)
+        load = round((load0 + os.getloadavg()[0]) / 2, 2)
+        size = f"{frames[0].shape[1]}x{frames[0].shape[0]}"
+        rows.append({"name": name, "size": size, "mode": "reference", "fps": ref_fps, "load_avg": load})
+        rows.append({"name": name, "size": size, "mode": "realtime", "fps": rt["fps"],
+                     "throughput_fps": rt["throughput_fps"], **compare(reference, rt["per_frame"], args.stream_fps),
+                     "latency_ms_p95": rt["latency_ms_p95"], "dropped": rt["dropped"], "load_avg": load,
+                     "searches": rt["searches"], "search_mean_s": rt["search_mean_s"],
+                     "stream_fps": args.stream_fps})  # fmt: skip
+    cols = ["name", "size", "mode", "fps", "throughput_fps", "recall_vs_reference", "first_detection_s",
+            "traits_within_0_1", "latency_ms_p95", "dropped", "load_avg"]  # fmt: skip
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for r in rows:
+        cells = [r.get(c, "") for c in cols]
+        print("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in cells) + " |")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=2))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
+    ap.add_argument("--stream-fps", type=float, default=15.0, help="--realtime: the stream's frame rate")
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
@@ -69,6 +194,9 @@ def main() -> None:
     if not SHARED.is_dir():
         raise SystemExit(f"needs the shared data at {SHARED}")
     model = LookingModel.from_file()
+    if args.realtime:
+        realtime_main(args, model)
+        return
     rows = []
     for scan in args.scan_frames:
         for seq in ("walk_a", "phone_a"):

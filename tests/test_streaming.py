@@ -1,0 +1,148 @@
+"""The streaming perceiver (issue 20 item 1) and the real-time pose backend's contract."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from trustnav.perception.streaming import StreamingPerceiver
+
+FRAME = np.zeros((8, 8, 3), dtype=np.uint8)
+
+
+def _slow(seconds: float, fail_at: float | None = None):
+    def step(frame, time: float):
+        import time as _t
+
+        _t.sleep(seconds)
+        if fail_at is not None and abs(time - fail_at) < 1e-9:
+            raise RuntimeError("bad frame")
+        return [time]
+
+    return step
+
+
+def test_realtime_mode_drops_old_frames_and_keeps_latency_bounded():
+    with StreamingPerceiver(_slow(0.05), mode="realtime") as sp:
+        for i in range(40):  # a camera at 200 frames/s, a step of 50 ms
+            sp.submit(FRAME, i * 0.005)
+            time.sleep(0.005)
+        results = sp.drain(timeout=5.0)
+        stats = sp.stats
+    assert stats["submitted"] == 40 and stats["dropped"] > 20
+    assert stats["processed"] + stats["dropped"] == 40
+    assert len(results) == stats["processed"]
+    times = [r.capture_time for r in results]
+    assert times == sorted(times) and results[-1].capture_time == pytest.approx(39 * 0.005)
+    assert all(r.people == [r.capture_time] and r.error is None for r in results)
+    # a result is never older than the frame being worked on plus one waiting: ~2 steps
+    assert max(r.latency for r in results) < 0.05 * 2 + 0.08
+    assert [r.dropped for r in results] == sorted(r.dropped for r in results)
+
+
+def test_offline_mode_processes_every_frame_in_order():
+    with StreamingPerceiver(_slow(0.002), mode="offline", max_queue=3) as sp:
+        for i in range(25):
+            sp.submit(FRAME, i / 10)
+        results = sp.drain(timeout=10.0)
+    assert [r.index for r in results] == list(range(25))
+    assert [r.capture_time for r in results] == [i / 10 for i in range(25)]
+    assert all(r.dropped == 0 for r in results)
+
+
+def test_one_failing_frame_is_reported_and_the_stream_goes_on():
+    with StreamingPerceiver(_slow(0.0, fail_at=0.2), mode="offline") as sp:
+        for i in range(5):
+            sp.submit(FRAME, i / 10)
+        results = sp.drain(timeout=5.0)
+    bad = [r for r in results if r.error]
+    assert len(results) == 5 and len(bad) == 1 and bad[0].index == 2
+    assert "bad frame" in bad[0].error and "t = 0.200 s" in bad[0].error and bad[0].people == []
+
+
+def test_bad_input_is_refused_with_a_clear_message():
+    with pytest.raises(ValueError, match="mode must be one of"):
+        StreamingPerceiver(_slow(0.0), mode="fast")
+    with pytest.raises(ValueError, match="step must be callable"):
+        StreamingPerceiver(3)
+    with pytest.raises(ValueError, match="max_queue"):
+        StreamingPerceiver(_slow(0.0), mode="offline", max_queue=0)
+    sp = StreamingPerceiver(_slow(0.0))
+    try:
+        sp.submit(FRAME, 1.0)
+        with pytest.raises(ValueError, match="must not decrease"):
+            sp.submit(FRAME, 0.5)
+        with pytest.raises(ValueError, match="finite"):
+            sp.submit(FRAME, math.nan)
+    finally:
+        sp.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        sp.submit(FRAME, 2.0)
+    assert not any(t.name == "trustnav-perceiver" and t.is_alive() for t in threading.enumerate() if t is sp._thread)
+
+
+def test_realtime_backend_config_is_validated():
+    from trustnav.perception.realtime import RealtimeConfig
+
+    with pytest.raises(ValueError, match="landmark_every"):
+        RealtimeConfig(landmark_every=0)
+    with pytest.raises(ValueError, match="carry_frames"):
+        RealtimeConfig(carry_frames=-1)
+    with pytest.raises(ValueError, match="max_search_age"):
+        RealtimeConfig(max_search_age=0)
+
+
+@pytest.mark.slow
+def test_realtime_backend_answers_first_frame_in_full_then_follows_and_stops(sequences, read_rgb):
+    """The first frame is searched in full (everyone the offline backend finds on it); later frames
+    are answered without waiting for a search; close() stops the search thread."""
+    from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
+    from trustnav.perception.realtime import RealtimePoseBackend
+    from trustnav.perception.types import box_iou
+
+    files = sorted((sequences / "walk_a").iterdir())[:12]
+    frames = [read_rgb(f) for f in files]
+    with MediaPipePoseBackend(video=True) as ref:
+        first = ref(frames[0])
+    rt = RealtimePoseBackend()
+    try:
+        got = rt(frames[0])
+        assert len(got) == len(first)
+        assert all(max(box_iou(p.bbox, q.bbox) for q in got) > 0.9 for p in first)
+        seen = [rt(f) for f in frames[1:]]
+        assert all(len(s) >= 1 for s in seen)  # people followed, frame after frame
+        assert any(p.extra.get("predicted") for s in seen for p in s)  # carried on the frames between fits
+        assert rt.stats["searches"] >= 1
+        rt.reset()
+        again = rt(frames[0])
+        assert len(again) == len(first)
+    finally:
+        rt.close()
+    assert rt._thread is None or not rt._thread.is_alive()
+
+
+def test_benchmark_comparison_of_realtime_with_reference():
+    """bench_perception --realtime: recall over the reference's person-frames (a dropped frame
+    reports nobody), the worst first-detection delay in stream seconds, trait agreement."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_perception.py"
+    spec = importlib.util.spec_from_file_location("bench_perception", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+
+    def person(pid, x, eye=0.2, phone=0.9):
+        return {"id": pid, "bbox": np.array([x, 0.0, x + 10.0, 30.0]), "eye": eye, "phone": phone}
+
+    reference = [[person(1, 0)], [person(1, 2), person(2, 50)], [person(1, 4), person(2, 52)], [person(2, 54)]]
+    realtime = [[person(7, 0)], None, [person(7, 4), person(8, 52, eye=0.5)], [person(8, 54)]]
+    out = bench.compare(reference, realtime, fps=10.0)
+    assert out["recall_vs_reference"] == pytest.approx(4 / 6)
+    assert out["first_detection_s"] == pytest.approx(0.1)  # person 2: frame 1 -> frame 2
+    assert out["traits_within_0_1"] == pytest.approx(3 / 4)
