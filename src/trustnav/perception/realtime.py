@@ -213,8 +213,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             self._quiet_searcher()
             groups = self.detect(sharpened(frame, self.config.sharpen, self.config.sharpen_sigma))
             found: list = []
-            self._start()
-            self._hand_over(index, frame, known)
+            self._start()  # the search thread starts on the next frame (this one is searched)
         else:
             groups = []
             searches = self._hand_over(index, frame, known)
