@@ -70,6 +70,8 @@ def test_the_carla_section_is_validated_and_passed_as_options(tmp_path):
         (MINIMAL.replace("duration = 7.0", "duration = 7.0\nspeed_limit = 3"), "speed_limit"),
         (MINIMAL + "\n[control.gamma]\ngamma_ini = 0.1\nrho = 2\n", "rho"),
         (MINIMAL + "\n[road]\nlane_width = -1\n", "lane_width"),
+        (MINIMAL + "\n[camera]\nfov_deg = 'wide'\n", "fov_deg must be a number, got 'wide'"),
+        (MINIMAL.replace("duration = 7.0", "duration = 'long'"), "duration must be a number"),
     ],
 )
 def test_bad_files_are_refused_naming_the_file_and_the_key(tmp_path, capsys, content, expected):

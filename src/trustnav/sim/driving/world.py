@@ -425,7 +425,23 @@ def _section(cls: type, d: dict[str, Any] | None, where: str) -> Any:
     unknown = set(d) - known
     if unknown:
         raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
+    _check_numbers(cls, d, where)
     return cls(**d)
+
+
+_NUMBER_TYPES = {"float": "a number", "int": "an integer", "float | None": "a number", "int | None": "an integer"}
+
+
+def _check_numbers(cls: type, d: dict[str, Any], where: str) -> None:
+    """A key whose field is a plain number must hold one (TOML lets a user write a string there)."""
+    for f in fields(cls):
+        want = _NUMBER_TYPES.get(str(f.type))
+        if want is None or f.name not in d or (d[f.name] is None and "None" in str(f.type)):
+            continue
+        v = d[f.name]
+        ok = not isinstance(v, bool) and (isinstance(v, int) if want == "an integer" else isinstance(v, (int, float)))
+        if not ok:
+            raise ValueError(f"{where}: {f.name} must be {want}, got {v!r}")
 
 
 def _scenario_from_dict(d: dict[str, Any]) -> DriveScenario:
