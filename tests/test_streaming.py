@@ -146,3 +146,44 @@ def test_benchmark_comparison_of_realtime_with_reference():
     assert out["recall_vs_reference"] == pytest.approx(4 / 6)
     assert out["first_detection_s"] == pytest.approx(0.1)  # person 2: frame 1 -> frame 2
     assert out["traits_within_0_1"] == pytest.approx(3 / 4)
+
+
+def test_drive_refuses_realtime_perception_without_rendered_frames(capsys, tmp_path):
+    from trustnav.cli import main
+
+    code = main(["drive", "case-1", "--sensing", "keypoints", "--perception", "realtime", "--out", str(tmp_path / "o")])
+    assert code == 2 and "--perception realtime needs --sensing render" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_render_drive_with_the_realtime_perceiver_reports_latency_per_frame():
+    """Case I at 10 frames/s, first 8 frames, with the real-time backend: the drive completes,
+    every frame reports the wall time perception took, and people the backend only carried by their
+    velocity never reach the world tracker or trust (they were not measured on that frame)."""
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+    from trustnav.sim.driving.sensing import make_render_sensing
+
+    sc = load_drive_scenario("case-1")
+    renderer, pipeline = make_render_sensing(sc, 10.0, realtime=True)
+    backend = pipeline.backend
+    carried = []
+
+    class Watched:  # the backend, noting the people it only carried
+        def __call__(self, frame):
+            out = backend(frame)
+            carried.extend(p for p in out if p.extra.get("predicted"))
+            return out
+
+    pipeline.backend = Watched()
+    try:
+        r = run_drive(sc, sensing="render", renderer=renderer, pipeline=pipeline, capture_rate=10.0, max_frames=8)
+    finally:
+        renderer.close()
+        backend.close()
+    m = r.metrics()
+    assert len(r.frames) == 8 and m["margin_violations"] == 0
+    assert all(f["perception_ms"] is not None and f["perception_ms"] >= 0 for f in m["per_frame"])
+    assert m["perception_ms_median"] is not None and m["perception_ms_p95"] >= m["perception_ms_median"]
+    sensed = [s.person for f in r.frames for s in f.sensed]
+    assert carried and sensed and not any(p.extra.get("predicted") for p in sensed)

@@ -503,6 +503,7 @@ def _drive_runs(
     run_variant: object = None,
     label: str = "",
     state: str = "perceived",
+    perception: str = "offline",
 ) -> list[tuple[str, dict, Path]]:
     """Run a driving case (a preset name, a scenario file or a DriveScenario; Case II: both variants
     unless one is asked for) and write its outputs.
@@ -518,7 +519,7 @@ def _drive_runs(
     def own_world(sc, att, progress):  # type: ignore[no-untyped-def]
         renderer = pipeline = None
         if sensing == "render":
-            renderer, pipeline = make_render_sensing(sc, rate)
+            renderer, pipeline = make_render_sensing(sc, rate, realtime=perception == "realtime")
         try:
             return run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
                              control_rate=control_rate, renderer=renderer, pipeline=pipeline,
@@ -575,6 +576,8 @@ def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
     for tag, m, where in done:
         ttg = "not reached" if m["time_to_goal"] is None else f"{m['time_to_goal']:.1f} s"
         extra = f"  detection recall {m['detection_recall']:.2f}" if m.get("detection_recall") is not None else ""
+        if m.get("perception_ms_median") is not None:
+            extra += f"  perception {m['perception_ms_median']:.0f} ms (p95 {m['perception_ms_p95']:.0f})"
         print(f"  {tag}: goal {ttg}  margin violations {m['margin_violations']}  relaxed steps "
               f"{m['relaxed_steps']}  fallback steps {m['fallback_steps']}  solve {m['solve_ms_median']:.2f} ms "
               f"(p95 {m['solve_ms_p95']:.2f}){extra}  -> {where}")  # fmt: skip
@@ -628,6 +631,8 @@ def _walker_arg(v: str | None) -> int | str | None:
 
 
 def _drive(args: argparse.Namespace) -> int:
+    if args.perception == "realtime" and (args.sensing != "render" or args.world != "sim"):
+        raise ValueError("--perception realtime needs --sensing render in trustnav's own world (--world sim)")
     sc = _drive_scenario(args)
     route = ("town", "carla_fov", "attentive_walker", "distracted_walker")
     if args.world != "carla" and any(getattr(args, name, None) is not None for name in route):
@@ -654,7 +659,8 @@ def _drive(args: argparse.Namespace) -> int:
         try:
             done = _drive_runs(sc, args.sensing, args.attentive, args.seed, args.rate, folder.path,
                                video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
-                               label=label, state=getattr(args, "state", "perceived"))  # fmt: skip
+                               label=label, state=getattr(args, "state", "perceived"),
+                               perception=args.perception)  # fmt: skip
         except errors as exc:
             folder.discard()
             print(f"trustnav: error: {exc}", file=sys.stderr)
@@ -975,6 +981,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--state", choices=["perceived", "true"], default="perceived",
                    help="where the controller's pedestrian positions and velocities come from: perceived "
                    "(default: the camera, localised and tracked, with uncertainty) or true (the world's)")  # fmt: skip
+    d.add_argument("--perception", choices=["offline", "realtime"], default="offline",
+                   help="render sensing: offline (default: every frame searched in full, deterministic) or "
+                   "realtime (the search for new people beside the frame loop; results depend on machine "
+                   "load; docs/perception.md)")  # fmt: skip
     g = d.add_mutually_exclusive_group()
     g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
                    help="every pedestrian attentive")  # fmt: skip

@@ -494,7 +494,8 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
     """metrics.json: per pedestrian (scenario order) name, attentive, min_distance, final_trust,
     frames_seen, trust after the first observation and mean gain per frame; reached_goal,
     time_to_goal (s or null), margin_violations (control steps with some distance < R),
-    relaxed_steps, fallback_steps, solve times; render mode adds detection_recall. Distances are
+    relaxed_steps, fallback_steps, solve times; render mode adds detection_recall and the wall time
+    perception took per frame (``per_frame[...]["perception_ms"]``, median and p95). Distances are
     always the true ones. With perceived states (``state``), per pedestrian the localisation
     error of its track after each frame that saw it (median, p95, m), the velocity error
     (median, m/s) and interval coverage (share of those frames with the truth inside the
@@ -551,10 +552,17 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         out["false_positives"] = int(sum(f.false_positives for f in r.frames))
         out["per_frame"] = [
             {"time": round(f.time, 3), "detected": f.detections, "ground_truth": f.ground_truth,
-             "false_positives": f.false_positives}
+             "false_positives": f.false_positives, "perception_ms": _ms(f.timing.get("perception"))}
             for f in r.frames
         ]  # fmt: skip
+        ms = [1e3 * f.timing["perception"] for f in r.frames if "perception" in f.timing]
+        out["perception_ms_median"] = round(float(np.median(ms)), 1) if ms else None
+        out["perception_ms_p95"] = round(float(np.percentile(ms, 95)), 1) if ms else None
     return out
+
+
+def _ms(seconds: float | None) -> float | None:
+    return None if seconds is None else round(1e3 * float(seconds), 1)
 
 
 def _localisation(r: DriveResult, j: int) -> dict[str, Any]:

@@ -305,6 +305,9 @@ class RenderSensor:
         frame = self.renderer.render(camera, list(bodies))
         t1 = _time.perf_counter()
         people = self.pipeline(frame, time=time) if self._timed and time is not None else self.pipeline(frame)
+        # a person the real-time backend carried by its velocity was not measured on this frame: the
+        # world tracker predicts it itself, and trust gets no evidence from it
+        people = [tp for tp in people if not tp.person.extra.get("predicted")]
         t2 = _time.perf_counter()
         # the true projected boxes label each detection for scoring (and for the "true"-state mode);
         # in the perceived-state mode nothing downstream uses the label
@@ -359,12 +362,15 @@ class TrustTracker:
         return self.estimator.trust(index)
 
 
-def make_render_sensing(scenario: Any, capture_rate: float | None = None) -> tuple[Any, Any]:
+def make_render_sensing(scenario: Any, capture_rate: float | None = None, realtime: bool = False) -> tuple[Any, Any]:
     """(renderer, perception pipeline) for render sensing: PyBullet's CPU renderer of the scenario's
     street and trustnav.perception (MediaPipe BlazePose, OC-SORT tracking at the capture rate,
     LOOKING, the phone classifier). BlazePose's video mode (following people from their landmarks
     between detections) only from 5 frames/s: at 1 frame/s a car moves metres between frames and
-    the follower left a stray box where a person had been. Close the renderer and the backend when done."""
+    the follower left a stray box where a person had been. ``realtime``: the pose backend is
+    :class:`~trustnav.perception.realtime.RealtimePoseBackend` (the search for new people runs
+    beside the frame loop; what it finds then depends on the machine's speed and load). Close the
+    renderer and the backend when done."""
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
     from trustnav.perception.pipeline import PerceptionPipeline
     from trustnav.perception.tracking import PersonTracker
@@ -372,6 +378,11 @@ def make_render_sensing(scenario: Any, capture_rate: float | None = None) -> tup
 
     fps = float(capture_rate or scenario.camera.rate)
     renderer = PyBulletRenderer(street_of(scenario))
-    backend = MediaPipePoseBackend(video=fps >= 5.0)
+    if realtime:
+        from trustnav.perception.realtime import RealtimePoseBackend
+
+        backend: Any = RealtimePoseBackend()
+    else:
+        backend = MediaPipePoseBackend(video=fps >= 5.0)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
     return renderer, pipeline
