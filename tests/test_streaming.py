@@ -142,9 +142,15 @@ def test_benchmark_comparison_of_realtime_with_reference():
 
     reference = [[person(1, 0)], [person(1, 2), person(2, 50)], [person(1, 4), person(2, 52)], [person(2, 54)]]
     realtime = [[person(7, 0)], None, [person(7, 4), person(8, 52, eye=0.5)], [person(8, 54)]]
-    out = bench.compare(reference, realtime, fps=10.0)
+    out = bench.compare(reference, realtime, fps=10.0, settle_s=0.1)
     assert out["recall_vs_reference"] == pytest.approx(4 / 6)
     assert out["first_detection_s"] == pytest.approx(0.1)  # person 2: frame 1 -> frame 2
+    assert out["first_detection_people"] == 2 and out["never_found"] == 0
+    # a person the reference follows for less than settle_s is not judged; one never found counts to the end
+    short = bench.compare(reference, realtime, fps=10.0, settle_s=0.4)  # both are followed 3 frames
+    assert short["first_detection_people"] == 0 and short["first_detection_s"] == 0.0
+    lost = bench.compare(reference, [[person(7, 0)], None, [person(7, 4)], []], fps=10.0, settle_s=0.1)
+    assert lost["never_found"] == 1 and lost["first_detection_s"] == pytest.approx(0.3)  # frame 1 -> end (4)
     assert out["traits_within_0_1"] == pytest.approx(3 / 4)
 
 

@@ -24,6 +24,7 @@ import math
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -121,7 +122,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             self._thread.start()
 
     def _search_loop(self) -> None:
-
+        previous: NDArray[np.uint8] | None = None
         while True:
             with self._lock:
                 while self._pending is None and not self._stop:
@@ -132,33 +133,52 @@ class RealtimePoseBackend(MediaPipePoseBackend):
                 self._pending = None
                 self._busy = True
             t0 = time.perf_counter()
+
+            def publish(people: list, index: int = index, t0: float = t0) -> None:
+                with self._lock:
+                    self._found.append(_Search(index, time.perf_counter() - t0, people))
+
             try:
-                found = self._search(frame, known)
-            except Exception:  # a failed search loses that search only
-                found = []
-            seconds = time.perf_counter() - t0
+                self._search(frame, known, previous, publish)
+            except Exception:  # a failed search loses the rest of that search only
+                pass
+            previous = frame
             with self._lock:
                 self._busy = False
-                self._found.append(_Search(index, seconds, found))
-                self._searches.append(seconds)
+                self._searches.append(time.perf_counter() - t0)
                 self._lock.notify_all()
 
-    def _search(self, frame: NDArray[np.uint8], known: list[NDArray[np.float64]]) -> list:
+    def _search(
+        self,
+        frame: NDArray[np.uint8],
+        known: list[NDArray[np.float64]],
+        previous: NDArray[np.uint8] | None,
+        publish: Callable[[list], None],
+    ) -> None:
         """New people on ``frame`` (searcher core): the tiled detector, then the landmark check on
-        the regions that are not people followed already. Returns [(next region, score, person)]."""
+        the regions that are not people followed already; what is found is published after each
+        batch of :data:`SEARCH_BATCH` windows, [(next region, score, person)], so that a person
+        found early in a search is followed before the search ends. Windows are searched in order of
+        :func:`search_order` (the whole frame, then where the image changed and its side edges)."""
         h, w = frame.shape[:2]
         search = sharpened(frame, self.config.sharpen, self.config.sharpen_sigma)
-        out = []
-        regions = [r for win in tiles(h, w, self.config) for r in self._searcher.detect(search, win)]
-        for rois, score in _merge_regions(regions):
-            if any(_same_region(rois[0], r) for r in known):
-                continue
-            res = self._searcher.landmarks_of_group(
-                frame, rois, lambda lm, roi, s=score: self._person(lm, s, w, h, roi)
-            )
-            if res is not None:
-                out.append((res[1], score, res[3]))
-        return out
+        windows = search_order(tiles(h, w, self.config), frame, previous)
+        checked: list[NDArray[np.float64]] = list(known)
+        for start in range(0, len(windows), SEARCH_BATCH):
+            regions = [r for win in windows[start : start + SEARCH_BATCH] for r in self._searcher.detect(search, win)]
+            out = []
+            for rois, score in _merge_regions(regions):
+                if any(_same_region(rois[0], r) for r in checked):
+                    continue
+                checked.append(rois[0])
+                res = self._searcher.landmarks_of_group(
+                    frame, rois, lambda lm, roi, s=score: self._person(lm, s, w, h, roi)
+                )
+                if res is not None:
+                    out.append((res[1], score, res[3]))
+                    checked.append(res[1])
+            if out:
+                publish(out)
 
     def _hand_over(self, index: int, frame: NDArray[np.uint8], known: list[NDArray[np.float64]]) -> list[_Search]:
         """Give the searcher the newest frame (replacing one it has not started) and the regions of
@@ -278,6 +298,40 @@ class RealtimePoseBackend(MediaPipePoseBackend):
                 people.append(f)
         self._people = people
         return [f.person for f in people]
+
+
+#: Windows the search thread runs before it publishes what they found.
+SEARCH_BATCH = 6
+
+
+def search_order(
+    windows: list[tuple[int, int, int, int]], frame: NDArray[np.uint8], previous: NDArray[np.uint8] | None
+) -> list[tuple[int, int, int, int]]:
+    """The search windows, whole frame first, then by where people appear: the share of the window
+    where the image changed since the previous search (a person walking in, a car's motion), plus a
+    bonus for windows on the left and right edges (where people enter the view)."""
+    if len(windows) <= 1:
+        return list(windows)
+    h, w = frame.shape[:2]
+    change = None
+    if previous is not None and previous.shape == frame.shape:
+        small = (max(1, w // 8), max(1, h // 8))
+        import cv2
+
+        a = cv2.resize(frame, small, interpolation=cv2.INTER_AREA).astype(np.int16)
+        b = cv2.resize(previous, small, interpolation=cv2.INTER_AREA).astype(np.int16)
+        change = (np.abs(a - b).max(axis=2) > 20).astype(float)
+
+    def priority(win: tuple[int, int, int, int]) -> float:
+        x0, y0, x1, y1 = win
+        edge = 0.5 if x0 <= 0 or x1 >= w else 0.0
+        if change is None:
+            return edge
+        cut = change[y0 // 8 : max(y0 // 8 + 1, y1 // 8), x0 // 8 : max(x0 // 8 + 1, x1 // 8)]
+        return edge + float(cut.mean()) if cut.size else edge
+
+    rest = sorted(windows[1:], key=priority, reverse=True)
+    return [windows[0], *rest]
 
 
 #: A carried person is dropped when a fit of this frame overlaps it this much (the same person).
