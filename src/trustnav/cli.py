@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import glob
+import itertools
 import json
 import math
 import os
@@ -45,6 +46,9 @@ BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
     "fps": (float, 0, 240, True, " frames per second"),
     "scan_frames": (int, 1, 100, False, ""),
     "sharpen": (float, 0, 3, False, ""),
+    "max_frames": (int, 1, None, False, ""),
+    "max_seconds": (float, 0, None, True, " s"),
+    "open_timeout": (float, 0, 600, True, " s"),
     "port": (int, 1, 65535, False, ""),
     "timeout": (float, 0, 600, True, " s"),
     "workers": (int, 1, 256, False, ""),
@@ -380,6 +384,10 @@ def _estimate(args: argparse.Namespace) -> int:
         ground = FixedCameraGround(args.camera_height, 70.0 if args.fov is None else args.fov, args.pitch or 0.0)
     elif args.fov is not None or args.pitch is not None:
         raise ValueError("--fov and --pitch place people on the ground only with --camera-height")
+    check_bounds(args, "max_frames", "max_seconds", "open_timeout")
+    if args.show and not _gui_available():
+        raise ValueError("--show needs an OpenCV that can open windows; this one is headless "
+                         "(opencv-python-headless): write the annotated output with --mp4 instead")  # fmt: skip
     if args.backend != "mediapipe" and (args.sharpen or args.scan_frames != 1):
         raise ValueError(f"--sharpen and --scan-frames apply to the mediapipe backend only, not {args.backend}")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
@@ -389,6 +397,11 @@ def _estimate(args: argparse.Namespace) -> int:
         from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact
 
         face = FaceEyeContact(FaceConfig(fov_deg=70.0 if args.fov is None else args.fov))
+    live_source = None
+    if sequences[0].kind == "live":  # opened before anything is written: a bad source fails cleanly
+        from trustnav.perception.live import LiveSource
+
+        live_source = LiveSource(sequences[0].source, open_timeout=args.open_timeout, read_timeout=args.open_timeout)
     folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
     earlier = folder.has_earlier_outputs()
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
@@ -398,9 +411,12 @@ def _estimate(args: argparse.Namespace) -> int:
         face_fields = () if face is None else FACE_FIELDS  # --face: eye_contact_face, face_confidence
         sink = _RecordSink(out, face_fields + (() if ground is None else ground.FIELDS))
         images = _Annotations(out, sequences, args.mp4)
-        counts = {"read": 0, "skipped": 0}
+        counts = {"read": 0, "skipped": 0, "dropped": 0}
         interrupted = False
-        total = frame_count([f for s in sequences for f in s.files])
+        is_live = sequences[0].kind == "live"
+        total = None if is_live else frame_count([f for s in sequences for f in s.files])
+        if total is not None and args.max_frames is not None:
+            total = min(total, args.max_frames)
         bar = tqdm(total=total, unit="frame")
 
         def report(res) -> None:
@@ -411,7 +427,13 @@ def _estimate(args: argparse.Namespace) -> int:
         old_term = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None
         try:
             for seq in sequences:
-                fps = source_fps(list(seq.files), args.fps) if seq.has_video else args.fps
+                live = live_source if seq.kind == "live" else None
+                if live is not None:
+                    fps = live.fps or args.fps
+                    items = live.frames(args.max_frames, args.max_seconds)
+                else:
+                    fps = source_fps(list(seq.files), args.fps) if seq.has_video else args.fps
+                    items = itertools.islice(iter_sequence(seq.files), args.max_frames)
                 if hasattr(backend, "reset"):
                     backend.reset()  # nothing followed from the previous sequence
                 if face is None:
@@ -425,23 +447,33 @@ def _estimate(args: argparse.Namespace) -> int:
                 bar.set_description(seq.label[-30:])
                 law = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST, "moving-average": MOVING_AVERAGE_TRUST}
                 trust = TrustEstimator(law[args.trust])
-                for res in estimate(iter_sequence(seq.files), pipeline, trust, fps, report, seq.label):
-                    bar.update(1)
-                    if res.error is not None:
-                        continue
-                    counts["read"] += 1
-                    labels = [phone_label(tp.phone) for tp in res.people]
-                    if ground is not None:  # where each person stands, from the camera's height
-                        h, w = res.rgb.shape[:2]
-                        for rec, tp in zip(res.records, res.people, strict=True):
-                            rec.update(ground.fields(tp.person, w, h))
-                        labels = [lab if r["distance_m"] is None else f"{lab} {r['distance_m']:.1f} m"
-                                  for lab, r in zip(labels, res.records, strict=True)]  # fmt: skip
-                    sink.add(res.records)
-                    if not args.no_images:
-                        img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
-                                       labels)  # fmt: skip
-                        images.add(res.name, img)
+                try:
+                    for res in estimate(items, pipeline, trust, fps, report, seq.label):
+                        bar.update(1)
+                        if res.error is not None:
+                            continue
+                        counts["read"] += 1
+                        labels = [phone_label(tp.phone) for tp in res.people]
+                        if ground is not None:  # where each person stands, from the camera's height
+                            h, w = res.rgb.shape[:2]
+                            for rec, tp in zip(res.records, res.people, strict=True):
+                                rec.update(ground.fields(tp.person, w, h))
+                            labels = [lab if r["distance_m"] is None else f"{lab} {r['distance_m']:.1f} m"
+                                      for lab, r in zip(labels, res.records, strict=True)]  # fmt: skip
+                        sink.add(res.records)
+                        if not args.no_images or args.show:
+                            img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
+                                           labels)  # fmt: skip
+                            if not args.no_images:
+                                images.add(res.name, img)
+                            if args.show and _show(img, seq.label):
+                                raise KeyboardInterrupt  # q or Esc in the window: stop as Ctrl-C does
+                except TimeoutError as exc:  # a live stream that stopped sending: the end of that stream
+                    tqdm.write(f"trustnav: {exc}; stopping", file=sys.stderr)
+                finally:
+                    if live is not None:
+                        counts["dropped"] += live.dropped
+                        live.close()
         except KeyboardInterrupt:
             interrupted = True
         finally:
@@ -480,8 +512,10 @@ def _estimate(args: argparse.Namespace) -> int:
             return 1
     out = folder.out
     tracks = len({(r["sequence"], r["track_id"]) for r in rows})
+    dropped = f", {counts['dropped']} live frames dropped (slower than the camera)" if is_live else ""
     print(f"estimate: {counts['read']} frames in {len(sequences)} sequence{'s' * (len(sequences) > 1)}, "
-          f"{len(rows)} records, {tracks} tracks, {counts['skipped']} frames skipped; wrote {out}")  # fmt: skip
+          f"{len(rows)} records, {tracks} tracks, {counts['skipped']} frames skipped{dropped}; "
+          f"wrote {out}")  # fmt: skip
     if ground is None:
         print("  no ground positions: give --camera-height (and --fov, --pitch) to place people on the ground")
     else:
@@ -489,6 +523,26 @@ def _estimate(args: argparse.Namespace) -> int:
         print(f"  {placed} of {len(rows)} records placed on the ground (ahead_m, left_m with sd; camera "
               f"{ground.height:g} m up, {ground.fov_deg:g} deg, pitch {ground.pitch_deg:g} deg)")  # fmt: skip
     return 0
+
+
+def _gui_available() -> bool:
+    """Whether this OpenCV can open windows (the headless build trustnav depends on cannot)."""
+    import cv2
+
+    try:
+        cv2.namedWindow("trustnav-probe", cv2.WINDOW_NORMAL)
+        cv2.destroyWindow("trustnav-probe")
+    except cv2.error:
+        return False
+    return True
+
+
+def _show(img, title: str) -> bool:
+    """Show an annotated frame; True when the user pressed q or Esc."""
+    import cv2
+
+    cv2.imshow(f"trustnav estimate: {title}", img)
+    return (cv2.waitKey(1) & 0xFF) in (ord("q"), 27)
 
 
 def _drive_runs(
@@ -929,7 +983,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="perception + trust on images, folders of frames or videos: annotated frames, tracks.csv/json",
     )
     e.add_argument("inputs", nargs="+",
-                   help="images, folders of frames (natural order) or videos; each its own sequence")  # fmt: skip
+                   help="images, folders of frames (natural order) or videos, each its own sequence; or one live "
+                   "input: a camera index (0) or a stream URL (rtsp://..., http://..., file://...), read "
+                   "newest-frame-first (frames perception has no time for are dropped and counted)")  # fmt: skip
     e.add_argument("--out", required=True, help="output directory (new or empty)")
     e.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
     e.add_argument("--one-sequence", action="store_true",
@@ -949,6 +1005,18 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help=f"mediapipe: unsharp mask for the person search, {_range('sharpen')} (default 0, off); 0.7 finds "
         "more people on soft or compressed video (MP4 at ~36 dB)",
+    )
+    e.add_argument("--max-frames", type=int, help=f"stop after N frames, {_range('max_frames')} (any input)")
+    e.add_argument("--max-seconds", type=float,
+                   help=f"live input: stop after S seconds, {_range('max_seconds')} (default: when the stream ends "
+                   "or on Ctrl-C)")  # fmt: skip
+    e.add_argument("--open-timeout", type=float, default=5.0,
+                   help=f"live input: seconds to wait for the source to open and for each frame, "
+                   f"{_range('open_timeout')} (default 5)")  # fmt: skip
+    e.add_argument(
+        "--show",
+        action="store_true",
+        help="show the annotated frames in a window (q or Esc stops; needs an OpenCV with a GUI)",
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
     e.add_argument("--face", action="store_true",

@@ -38,7 +38,7 @@ __all__ = [
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"})
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm"})
 
-SequenceKind = Literal["video", "folder", "image", "joined"]
+SequenceKind = Literal["video", "folder", "image", "joined", "live"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,7 @@ class FrameItem:
     index: int
     frame: NDArray[np.uint8] | None
     error: str | None = None
+    time: float | None = None  # capture time (s) when the source gives one (live input)
 
 
 @dataclass(frozen=True)
@@ -56,21 +57,24 @@ class FrameSequence:
     """Frames that belong together (one tracker, one trust state).
 
     label: unique name of the sequence in a run (a video's or image's file name, a folder's name);
-    kind: ``video``, ``folder``, ``image`` (a loose image) or ``joined`` (inputs run as one);
-    files: the files, in order.
+    kind: ``video``, ``folder``, ``image`` (a loose image), ``joined`` (inputs run as one) or
+    ``live`` (a camera index or stream URL, in ``source``); files: the files, in order.
     """
 
     label: str
     kind: SequenceKind
     files: tuple[Path, ...]
+    source: str | None = None
 
     def __post_init__(self) -> None:
-        if not self.files:
+        if self.kind == "live" and not self.source:
+            raise ValueError(f"live sequence {self.label!r} has no source")
+        if self.kind != "live" and not self.files:
             raise ValueError(f"sequence {self.label!r} has no files")
 
     @property
     def has_video(self) -> bool:
-        return any(is_video(f) for f in self.files)
+        return self.kind == "live" or any(is_video(f) for f in self.files)
 
 
 def is_video(path: Path) -> bool:
@@ -109,6 +113,13 @@ def plan_sequences(inputs: list[str | Path], *, one_sequence: bool = False) -> l
     """Group the inputs into sequences: each video, each folder of frames (a video inside a
     folder is a sequence of its own) and each loose image; all as one with ``one_sequence``.
     Labels are unique: a repeated name gets its parent folder's name, then a number."""
+    from trustnav.perception.live import is_live_source
+
+    live = [str(i) for i in inputs if is_live_source(str(i))]
+    if live and (one_sequence or len(live) < len(inputs) or len(live) > 1):
+        raise ValueError(f"a live input ({live[0]}) runs alone: give one camera index or stream URL and no other input")
+    if live:
+        return [FrameSequence(_safe_label(live[0]), "live", (), source=live[0])]
     raw: list[tuple[Path, SequenceKind, list[Path]]] = []
     for p in map(Path, inputs):
         _check_exists(p)
@@ -136,6 +147,14 @@ def plan_sequences(inputs: list[str | Path], *, one_sequence: bool = False) -> l
         used.add(label)
         out.append(FrameSequence(label, kind, tuple(files)))
     return out
+
+
+def _safe_label(source: str) -> str:
+    """A sequence label for a live source: ``camera0``, or the URL without its scheme and with
+    characters that do not belong in a file name replaced."""
+    if source.isdigit():
+        return f"camera{source}"
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", source.split("://", 1)[-1]).strip("_")[:60] or "stream"
 
 
 @contextlib.contextmanager

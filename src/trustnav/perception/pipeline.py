@@ -172,7 +172,8 @@ def estimate(
     on_error: Callable[[FrameResult], None] | None = None,
     sequence: str | None = None,
 ) -> Iterator[FrameResult]:
-    """Run perception and trust over one sequence; frame k is at time k / fps seconds.
+    """Run perception and trust over one sequence; frame k is at time k / fps seconds, or at its
+    own capture time when the frame carries one (live input).
 
     A frame that cannot be read, or on which perception fails, yields a FrameResult with ``error``
     set (and is passed to ``on_error``); the sequence goes on. With ``sequence`` every record
@@ -181,7 +182,7 @@ def estimate(
     if isinstance(fps, bool) or not isinstance(fps, Real) or not 0 < fps < math.inf:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}")
     for item in frames:
-        t = item.index / fps
+        t = item.time if item.time is not None else item.index / fps
         result = FrameResult(item.name, item.index, t, rgb=item.frame)
         if item.frame is None:
             result.error = item.error or "unreadable frame"
