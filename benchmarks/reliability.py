@@ -34,6 +34,7 @@ KEYS = (
     "failed",
     "steps",
     "reached_goal",
+    "stopped_for_good",
     "infeasible_episodes",
     "infeasible_steps",
     "relaxed_steps_checked",

@@ -121,6 +121,7 @@ def summarise_records(recs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "solver_failed_steps": sum(r.get("failed_steps") or 0 for r in ok),
         "reached_goal": reached,
         "reached_goal_rate": rate(reached),
+        "stopped_for_good": sum(bool(r.get("stopped_for_good")) for r in ok),
         "time_to_goal_median": _q(ttg, 50),
         "min_distance_median": _q(md, 50),
         "min_distance_p05": _q(md, 5),

@@ -11,13 +11,14 @@ import math
 import time
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control.barrier import Barrier, uncertainty_margins
-from trustnav.control.costs import Cost
+from trustnav.control.costs import Cost, VelocityTrackingCost
+from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics
 from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians
 from trustnav.control.solvers import (
@@ -60,6 +61,7 @@ class MpcSolution:
     deadline_hit: bool = False  # the step deadline cut the solve short
     state_violation: float = 0.0  # worst break of the model's hard state limits (bicycle: v < speed_min), m/s
     state_repaired: bool = False  # the chosen plan broke a state limit and was repaired or replaced by braking
+    detour: str | None = None  # the deadlock layer's note: going around a group, or no room to (None: not wedged)
 
 
 class MpcController:
@@ -87,6 +89,9 @@ class MpcController:
         self.problem: MpcProblem = MpcProblem(model, cost, self.config, barriers)
         self.model = self.problem.model
         self.solver = solver or SqpSolver()
+        self._deadlock = None
+        if self.config.deadlock is not None and isinstance(self.problem.cost, VelocityTrackingCost):
+            self._deadlock = DeadlockResolver(self.config.deadlock, self.config.dt)
         self._warm_up()
         self.reset()
 
@@ -101,6 +106,8 @@ class MpcController:
         p.set_stage(x, np.zeros((0, 2)), None, [])
 
     def reset(self) -> None:
+        if self._deadlock is not None:
+            self._deadlock.reset()
         self._plan: NDArray[np.float64] | None = None
         self._last_control = np.zeros(self.model.nu)
         self._issued: deque[tuple[float, NDArray[np.float64]]] = deque()  # (time sent, command)
@@ -191,7 +198,20 @@ class MpcController:
             c = self.config
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
-        p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
+        detour = None
+        if self._deadlock is not None:  # the route layer may move the goal the cost tracks
+            radii = self.config.safety_radius + (np.zeros(len(peds)) if margins is None else margins)
+            speed = float(np.hypot(*self._last_control[:2]))
+            waypoint = self._deadlock.goal(x[:2], speed, np.asarray(p.cost.goal, dtype=float), peds, radii)
+            detour = self._deadlock.note
+            if waypoint is not None:
+                tracked, p.cost = p.cost, replace(p.cost, goal=(float(waypoint[0]), float(waypoint[1])))
+                try:
+                    p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
+                finally:
+                    p.cost = tracked
+        if self._deadlock is None or waypoint is None:
+            p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
         shifted = None
         if self._plan is not None:  # the previous plan shifted by one step, its last input held
             shifted = np.empty_like(self._plan)
@@ -254,6 +274,7 @@ class MpcController:
             deadline_hit=res.deadline_hit,
             state_violation=state_violation,
             state_repaired=repaired,
+            detour=detour,
         )
 
     def _repair(self, x, plan, source, status, fv, viol, broken):

@@ -38,6 +38,7 @@ from trustnav.control.costs import (
     TrackingWeights,
     VelocityTrackingCost,
 )
+from trustnav.control.deadlock import DeadlockConfig
 from trustnav.control.models import Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
 from trustnav.trust import PAPER_GAMMA_NUMERICAL, GammaParams, gamma
 
@@ -68,7 +69,11 @@ class MpcConfig:
     ``deterministic``: no wall-clock deadline; each step is bounded by the solver's iteration
     budget alone (``SqpSolver``'s ``max_iter``, ``max_restarts`` and ``phase1_qps``), so its result
     depends on its inputs only, never on the machine's load (reproducible runs, tests, offline
-    studies). The default (False) is the real-time mode: the deadline cuts a solve short."""
+    studies). The default (False) is the real-time mode: the deadline cuts a solve short.
+
+    ``deadlock``: the route layer that takes a wedged vehicle around a group of pedestrians
+    (:mod:`~trustnav.control.deadlock`; costs that track a goal with a planar velocity); None: the
+    paper's plain controller, which stops for good when wedged (the paper's presets use None)."""
 
     horizon: int = 7
     dt: float = 0.05
@@ -79,6 +84,7 @@ class MpcConfig:
     deadline: float | None = None
     confidence: float = 0.95
     deterministic: bool = False
+    deadlock: DeadlockConfig | None = field(default_factory=DeadlockConfig)
 
     @property
     def step_deadline(self) -> float:
@@ -101,6 +107,8 @@ class MpcConfig:
             raise ValueError(f"confidence must be in [0.5, 1), got {self.confidence!r}")
         if not isinstance(self.deterministic, bool):
             raise ValueError(f"deterministic must be True or False, got {self.deterministic!r}")
+        if self.deadlock is not None and not isinstance(self.deadlock, DeadlockConfig):
+            raise ValueError(f"deadlock must be a DeadlockConfig or None, got {self.deadlock!r}")
 
 
 MAX_COORDINATE = 1e12  # m; beyond it float64 spacing exceeds 0.1 mm

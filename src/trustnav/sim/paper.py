@@ -155,6 +155,7 @@ class PaperScenario:
             # simulated time is not wall time: a long step deadline keeps an episode a pure
             # function of the scenario, whatever the machine's load
             deadline=SIMULATION_DEADLINE,
+            deadlock=None,  # the paper's plain controller: no route layer around wedges
         )
 
     def cost(self) -> VelocityTrackingCost:

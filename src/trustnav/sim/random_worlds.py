@@ -396,4 +396,16 @@ def world_record(world: RandomWorld, res: EpisodeResult, keep_step_times: bool =
         "step_cpu_ms": ct.tolist() if keep_step_times else None,
         "step_cpu_ms_max": float(ct.max()),
         "final_speed": float(res.ego[-1, 3]) if world.family == "bicycle" else None,
+        "stopped_for_good": _stopped_for_good(world, res),
     }
+
+
+def _stopped_for_good(world: RandomWorld, res: EpisodeResult, window_s: float = 2.0) -> bool:
+    """The episode ended short of the goal with the vehicle standing still (moved < 5 cm over the
+    last ``window_s``): wedged, not merely slow."""
+    if bool(res.to_record().get("reached_goal")):
+        return False
+    k = max(1, round(window_s / world.config.dt))
+    if len(res.ego) <= k:
+        return False
+    return bool(np.hypot(*(res.ego[-1, :2] - res.ego[-1 - k, :2])) < 0.05)
