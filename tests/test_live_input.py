@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from trustnav.perception.frames import plan_sequences
-from trustnav.perception.live import LiveSource, is_live_source
+from trustnav.perception.live import LiveSource, frames_due, is_live_source
 
 
 class FakeCapture:
@@ -116,6 +116,16 @@ def test_a_stream_that_stops_sending_times_out():
     src._stop = True  # the grabber is blocked in read(); it is a daemon thread
 
 
+def test_the_annotated_video_holds_each_frame_until_the_next_one():
+    # frames taken at 0, 0.35 and 0.4 s into a 10 frames/s video: 1, then 3 more, then 1 more
+    assert frames_due(5.0, 5.0, 10.0, 0, 50) == 1
+    assert frames_due(5.35, 5.0, 10.0, 1, 50) == 3
+    assert frames_due(5.4, 5.0, 10.0, 4, 50) == 1
+    assert frames_due(5.41, 5.0, 10.0, 5, 50) == 1  # never fewer than one
+    assert frames_due(900.0, 5.0, 10.0, 5, 50) == 50  # a jump in the stream's clock is bounded
+    assert frames_due(float("nan"), 5.0, 10.0, 5, 50) == 1
+
+
 def test_a_live_input_runs_alone():
     with pytest.raises(ValueError, match="runs alone"):
         plan_sequences(["0", "frames/"])
@@ -152,6 +162,63 @@ def test_estimate_reads_a_stream_url_and_writes_its_tables(sequences, looking_we
     recs = json.loads((out / "tracks.json").read_text())
     assert recs and all("#" in r["frame"] for r in recs)
     assert len({r["frame"] for r in recs}) <= 3 and (out / "annotated.mp4").is_file()
+    import cv2
+
+    # the video plays in real time: frames perception skipped are filled by the frame before them
+    numbers = sorted({int(r["frame"].split("#")[1]) for r in recs})
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    written = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    assert numbers[-1] - numbers[0] + 1 <= written <= 8
+
+
+def test_ctrl_c_on_a_live_input_keeps_the_tables_and_counts_the_drops(
+    sequences, looking_weights, tmp_path, capsys, monkeypatch
+):
+    import signal
+
+    import cv2
+
+    from trustnav.cli import main
+    from trustnav.perception import live
+
+    frames = [cv2.imread(str(f)) for f in sorted((sequences / "walk_a").iterdir())[:30]]
+
+    class Camera(FakeCapture):
+        def read(self):  # a camera that never stops, faster than perception
+            time.sleep(0.01)
+            self.k += 1
+            return True, frames[self.k % len(frames)]
+
+    taken = live.LiveSource.frames
+
+    def frames_then_ctrl_c(self, *args):
+        for k, item in enumerate(taken(self, *args)):
+            if k == 3:
+                signal.raise_signal(signal.SIGINT)  # Ctrl-C in the middle of the run
+            yield item
+
+    monkeypatch.setattr(live, "_open_cv", lambda source, timeout: Camera(n=0, period=0.0, clock=False))
+    monkeypatch.setattr(live.LiveSource, "frames", frames_then_ctrl_c)
+    out = tmp_path / "out"
+    args = ["0", "--out", str(out), "--looking-weights", str(looking_weights)]
+    assert main(["estimate", *args]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted after" in err and "live frames dropped" in err
+    recs = json.loads((out / "tracks.json").read_text())
+    assert recs and all(r["frame"].startswith("0#") for r in recs) and (out / "tracks.csv").is_file()
+    assert len({r["frame"] for r in recs}) <= 3  # the frames done before Ctrl-C
+
+
+def test_a_camera_that_does_not_exist_is_refused_naming_it(tmp_path, capsys):
+    from trustnav.cli import main
+
+    t0 = time.monotonic()
+    assert main(["estimate", "99", "--out", str(tmp_path / "o"), "--open-timeout", "2"]) == 2
+    assert time.monotonic() - t0 < 10.0
+    err = capsys.readouterr().err
+    assert "camera 99" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
 
 
 def test_estimate_refuses_a_stream_that_does_not_answer_quickly(tmp_path, capsys):

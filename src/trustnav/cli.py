@@ -363,17 +363,8 @@ def _raise_interrupt(signum, frame) -> None:  # SIGTERM (e.g. `timeout`) handled
 
 
 def _estimate(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from trustnav.perception.frames import frame_count, iter_sequence, plan_sequences, source_fps
+    from trustnav.perception.frames import plan_sequences
     from trustnav.perception.looking import LookingModel
-    from trustnav.perception.optional_backends import make_backend
-    from trustnav.perception.phone import phone_label
-    from trustnav.perception.pipeline import PerceptionPipeline, estimate
-    from trustnav.perception.tracking import PersonTracker
-    from trustnav.trust.estimator import TrustEstimator
-    from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST, SECONDS_TRUST
-    from trustnav.viz.annotate import annotate
 
     # everything that can be refused is refused before the output folder is touched
     check_bounds(args, "fps", "scan_frames", "sharpen", "camera_height", "fov", "pitch")
@@ -394,7 +385,7 @@ def _estimate(args: argparse.Namespace) -> int:
     eye = LookingModel.from_file(args.looking_weights)
     face = None
     if args.face:  # eye contact from the face too, fused with LOOKING (graphs loaded once, shared)
-        from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact
+        from trustnav.perception.face import FaceConfig, FaceEyeContact
 
         face = FaceEyeContact(FaceConfig(fov_deg=70.0 if args.fov is None else args.fov))
     live_source = None
@@ -402,6 +393,28 @@ def _estimate(args: argparse.Namespace) -> int:
         from trustnav.perception.live import LiveSource
 
         live_source = LiveSource(sequences[0].source, open_timeout=args.open_timeout, read_timeout=args.open_timeout)
+    try:
+        return _estimate_run(args, sequences, eye, face, ground, live_source)
+    finally:
+        if live_source is not None:
+            live_source.close()  # also when the run failed before reading it
+
+
+def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_source) -> int:
+    """The estimate command's input loop and tables (arguments already checked, inputs planned)."""
+    from tqdm import tqdm
+
+    from trustnav.perception.face import FACE_FIELDS
+    from trustnav.perception.frames import frame_count, iter_sequence, source_fps
+    from trustnav.perception.live import frames_due
+    from trustnav.perception.optional_backends import make_backend
+    from trustnav.perception.phone import phone_label
+    from trustnav.perception.pipeline import PerceptionPipeline, estimate
+    from trustnav.perception.tracking import PersonTracker
+    from trustnav.trust.estimator import TrustEstimator
+    from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST, SECONDS_TRUST
+    from trustnav.viz.annotate import annotate
+
     folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
     earlier = folder.has_earlier_outputs()
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
@@ -447,6 +460,8 @@ def _estimate(args: argparse.Namespace) -> int:
                 bar.set_description(seq.label[-30:])
                 law = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST, "moving-average": MOVING_AVERAGE_TRUST}
                 trust = TrustEstimator(law[args.trust])
+                t_first, written = None, 0  # live: capture time of the first frame, video frames written
+                most = max(1, round(fps * args.open_timeout))  # a jump in a stream's clock writes no more
                 try:
                     for res in estimate(items, pipeline, trust, fps, report, seq.label):
                         bar.update(1)
@@ -465,7 +480,13 @@ def _estimate(args: argparse.Namespace) -> int:
                             img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
                                            labels)  # fmt: skip
                             if not args.no_images:
-                                images.add(res.name, img)
+                                repeat = 1
+                                if live is not None:  # the video plays in real time at the rate achieved
+                                    t_first = res.time if t_first is None else t_first
+                                    repeat = frames_due(res.time, t_first, fps, written, most)
+                                for _ in range(repeat):
+                                    images.add(res.name, img)
+                                written += repeat
                             if args.show and _show(img, seq.label):
                                 raise KeyboardInterrupt  # q or Esc in the window: stop as Ctrl-C does
                 except TimeoutError as exc:  # a live stream that stopped sending: the end of that stream
@@ -502,7 +523,8 @@ def _estimate(args: argparse.Namespace) -> int:
                 note = f" ({folder.out} keeps the earlier outputs)"
             else:
                 kept, note = folder.commit(), ""
-            print(f"trustnav: interrupted after {counts['read']} frames; kept {len(rows)} records in "
+            dropped = f" ({counts['dropped']} live frames dropped)" if is_live else ""
+            print(f"trustnav: interrupted after {counts['read']} frames{dropped}; kept {len(rows)} records in "
                   f"{kept / 'tracks.csv'} and tracks.json{note}", file=sys.stderr)  # fmt: skip
             return 130
         if counts["read"] == 0:

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from trustnav.perception.frames import FrameItem
 
-__all__ = ["LiveSource", "is_live_source"]
+__all__ = ["LiveSource", "frames_due", "is_live_source"]
 
 _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 
@@ -30,6 +30,15 @@ _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
 def is_live_source(text: str) -> bool:
     """A camera index (``0``, ``1``, ...) or a URL (``rtsp://``, ``http://``, ``udp://``, ``file://``...)."""
     return text.isdigit() or bool(_URL.match(text))
+
+
+def frames_due(t: float, t_first: float, fps: float, written: int, most: int) -> int:
+    """How many times to write the frame captured at ``t`` into a video of ``fps`` frames/s that
+    started at ``t_first`` and holds ``written`` frames, so that it plays in real time at the rate
+    perception achieved (each frame held until the next one): at least 1, at most ``most``."""
+    if not (math.isfinite(t) and math.isfinite(t_first)) or fps <= 0:
+        return 1
+    return max(1, min(most, round((t - t_first) * fps) + 1 - written))
 
 
 def _open_cv(source: int | str, timeout_s: float) -> Any:
@@ -164,6 +173,8 @@ class LiveSource:
 
     def close(self) -> None:
         """Stop the grabber and release the capture."""
+        if self._stop:
+            return  # closed already
         self._stop = True
         if self._thread.is_alive():
             self._thread.join(timeout=self.read_timeout + 1.0)
