@@ -193,3 +193,30 @@ def test_render_drive_with_the_realtime_perceiver_reports_latency_per_frame():
     assert m["perception_ms_median"] is not None and m["perception_ms_p95"] >= m["perception_ms_median"]
     sensed = [s.person for f in r.frames for s in f.sensed]
     assert carried and sensed and not any(p.extra.get("predicted") for p in sensed)
+
+
+def test_estimate_refuses_realtime_perception_on_other_backends(tmp_path, capsys):
+    from trustnav.cli import main
+
+    code = main(["estimate", str(tmp_path), "--out", str(tmp_path / "o"), "--perception", "realtime",
+                 "--backend", "yolo"])  # fmt: skip
+    assert code == 2 and "--perception realtime runs on the mediapipe backend" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_estimate_with_realtime_perception_keeps_its_tables(sequences, looking_weights, tmp_path):
+    import json
+    import shutil
+
+    from trustnav.cli import main
+
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for f in sorted((sequences / "walk_a").iterdir())[:10]:
+        shutil.copy(f, clip / f.name)
+    out = tmp_path / "out"
+    args = [str(clip), "--out", str(out), "--no-images", "--looking-weights", str(looking_weights)]
+    assert main(["estimate", *args, "--perception", "realtime"]) == 0
+    recs = json.loads((out / "tracks.json").read_text())
+    assert {r["frame"] for r in recs} == {f.name for f in clip.iterdir()}  # people on every frame
+    assert {"frame", "track_id", "bbox", "phone", "eye_contact", "trust"} <= set(recs[0])

@@ -379,6 +379,9 @@ def _estimate(args: argparse.Namespace) -> int:
     if args.show and not _gui_available():
         raise ValueError("--show needs an OpenCV that can open windows; this one is headless "
                          "(opencv-python-headless): write the annotated output with --mp4 instead")  # fmt: skip
+    if args.perception == "realtime" and (args.backend != "mediapipe" or args.scan_frames != 1):
+        raise ValueError("--perception realtime runs on the mediapipe backend and searches on its own thread "
+                         "(no --scan-frames)")  # fmt: skip
     if args.backend != "mediapipe" and (args.sharpen or args.scan_frames != 1):
         raise ValueError(f"--sharpen and --scan-frames apply to the mediapipe backend only, not {args.backend}")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
@@ -420,7 +423,7 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
         out = folder.path
         kwargs = {"scan_frames": args.scan_frames, "sharpen": args.sharpen} if args.backend == "mediapipe" else {}
-        backend = make_backend(args.backend, video=True, **kwargs)
+        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime", **kwargs)
         face_fields = () if face is None else FACE_FIELDS  # --face: eye_contact_face, face_confidence
         sink = _RecordSink(out, face_fields + (() if ground is None else ground.FIELDS))
         images = _Annotations(out, sequences, args.mp4)
@@ -1021,6 +1024,10 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         help=f"mediapipe: share the tiled search over N frames, {_range('scan_frames')} (faster, fewer found)",
     )
+    e.add_argument("--perception", choices=["offline", "realtime"], default="offline",
+                   help="offline (default): every frame searched in full; realtime: the search for new people "
+                   "runs beside the frame loop, people followed at frame rate (faster; results depend on the "
+                   "machine's speed; docs/perception.md)")  # fmt: skip
     e.add_argument(
         "--sharpen",
         type=float,

@@ -78,8 +78,17 @@ class UltralyticsPoseBackend:
         return out
 
 
-def make_backend(name: str, *, video: bool = False, **kwargs: Any) -> Any:
-    """Pose backend by name: 'mediapipe' (default, offline), 'openpifpaf' or 'yolo'."""
+def make_backend(name: str, *, video: bool = False, realtime: bool = False, **kwargs: Any) -> Any:
+    """Pose backend by name: 'mediapipe' (default, offline), 'openpifpaf' or 'yolo'; ``realtime``
+    (mediapipe only): the search for new people beside the frame loop
+    (:class:`~trustnav.perception.realtime.RealtimePoseBackend`)."""
+    if realtime:
+        if name != "mediapipe":
+            raise ValueError(f"real-time perception is built on the mediapipe backend, not {name!r}")
+        from trustnav.perception.mediapipe_backend import MediaPipeConfig
+        from trustnav.perception.realtime import RealtimePoseBackend
+
+        return RealtimePoseBackend(MediaPipeConfig(**kwargs))
     if name == "mediapipe":
         from trustnav.perception.mediapipe_backend import MediaPipeConfig, MediaPipePoseBackend
 
