@@ -710,7 +710,7 @@ def _walker_arg(v: str | None) -> int | str | None:
 
 
 def _drive(args: argparse.Namespace) -> int:
-    if args.perception == "realtime" and (args.sensing != "render" or args.world != "sim"):
+    if getattr(args, "perception", "offline") == "realtime" and (args.sensing != "render" or args.world != "sim"):
         raise ValueError("--perception realtime needs --sensing render in trustnav's own world (--world sim)")
     sc = _drive_scenario(args)
     route = ("town", "carla_fov", "attentive_walker", "distracted_walker")
@@ -739,7 +739,7 @@ def _drive(args: argparse.Namespace) -> int:
             done = _drive_runs(sc, args.sensing, args.attentive, args.seed, args.rate, folder.path,
                                video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
                                label=label, state=getattr(args, "state", "perceived"),
-                               perception=args.perception)  # fmt: skip
+                               perception=getattr(args, "perception", "offline"))  # fmt: skip
         except errors as exc:
             folder.discard()
             print(f"trustnav: error: {exc}", file=sys.stderr)

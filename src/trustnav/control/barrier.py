@@ -24,6 +24,7 @@ __all__ = [
     "TIMINGS",
     "Barrier",
     "PedestrianBarrier",
+    "RoadEdgeBarrier",
     "Timing",
     "barrier",
     "cbf_rows",
@@ -210,3 +211,56 @@ def uncertainty_margins(
     var[ok] = np.einsum("ni,nij,nj->n", n, s[ok], n)
     z = NormalDist().inv_cdf(confidence)
     return z * np.sqrt(np.maximum(var, 0.0))
+
+
+class RoadEdgeBarrier:
+    """The drivable corridor of a straight road as two barrier functions on the ego's position:
+    h_left = (w_left - d) and h_right = (d + w_right), where d is the signed lateral offset of the
+    position from the line ``start -> end`` (left positive) and w_left, w_right the room on each
+    side, less ``margin`` (half the car's width: the body stays on the road). Linear in the
+    position, so `cbf_discrete` keeps the car inside when it can; a plan that cannot is relaxed and
+    reported like a pedestrian row. ``gamma``: the rate at which the car may approach an edge."""
+
+    def __init__(
+        self,
+        start: ArrayLike,
+        end: ArrayLike,
+        left: float,
+        right: float,
+        margin: float = 0.0,
+        gamma: float = 0.5,
+    ) -> None:
+        a, b = np.asarray(start, dtype=float).reshape(2), np.asarray(end, dtype=float).reshape(2)
+        axis = b - a
+        length = float(np.hypot(*axis))
+        if not np.isfinite(axis).all() or length <= 0:
+            raise ValueError(f"road start and end must be two different finite points, got {start!r}, {end!r}")
+        room_left, room_right = float(left) - float(margin), float(right) - float(margin)
+        if not (room_left + room_right > 0 and np.isfinite([room_left, room_right]).all()):
+            raise ValueError(f"the road leaves no room for the car: left {left}, right {right}, margin {margin}")
+        if not 0.0 < gamma <= 1.0:
+            raise ValueError(f"road gamma must be in (0, 1], got {gamma!r}")
+        self.start = a
+        self.normal = np.array([-axis[1], axis[0]]) / length  # left of the driving direction
+        self.room = (room_left, room_right)
+        self.gamma = float(gamma)
+
+    def size(self) -> int:
+        return 2
+
+    def decay(self) -> NDArray[np.float64]:
+        return np.full(2, 1.0 - self.gamma)
+
+    def offset(self, positions: ArrayLike) -> NDArray[np.float64]:
+        """Signed lateral offset of positions (..., 2) from the road's line (left positive)."""
+        return (np.asarray(positions, dtype=float) - self.start) @ self.normal
+
+    def values(
+        self, states: NDArray[np.float64], steps: NDArray[np.int64], dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        d = self.offset(states[:, :2])
+        h = np.stack([self.room[0] - d, d + self.room[1]], axis=1)
+        grad = np.zeros((states.shape[0], 2, states.shape[1]))
+        grad[:, 0, :2] = -self.normal
+        grad[:, 1, :2] = self.normal
+        return h, grad

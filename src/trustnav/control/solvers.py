@@ -187,24 +187,25 @@ class SqpSolver:
 
     # ---- QPs ----
     def _slack_columns(self, p: MpcProblem, row_pedestrians: int | None = None) -> tuple[NDArray[np.int64], int]:
-        """Column (after the n inputs) of the slack of each CBF row, and the slack count.
+        """Column (after the n inputs) of the slack of each CBF row (pedestrians and user barriers
+        alike: one obstacle per barrier function), and the slack count.
 
         DAQP's work grows with (rows) x (variables)^2, so the slacks are budgeted: one per row for
         the most binding pedestrians (at most ``row_slack_pedestrians``, or ``row_pedestrians``
         when given, and at most ``slack_budget`` rows), one per pedestrian for up to 16 more, one
         shared by the rest.
         """
-        order = p.binding_pedestrians(p.n_p)
+        order = p.binding_obstacles(p.n_obs)
         n_rp = self.row_slack_pedestrians if row_pedestrians is None else row_pedestrians
-        n_row = min(n_rp, p.n_p, self.slack_budget // p.n_h)
-        n_own = min(p.n_p - n_row, 16)
-        slot = np.empty(p.n_p, dtype=np.int64)
-        slot[order] = np.arange(p.n_p)
-        k = np.repeat(np.arange(p.n_h), p.n_p)
-        s = slot[np.tile(np.arange(p.n_p), p.n_h)]
+        n_row = min(n_rp, p.n_obs, self.slack_budget // p.n_h)
+        n_own = min(p.n_obs - n_row, 16)
+        slot = np.empty(p.n_obs, dtype=np.int64)
+        slot[order] = np.arange(p.n_obs)
+        k = np.repeat(np.arange(p.n_h), p.n_obs)
+        s = slot[np.tile(np.arange(p.n_obs), p.n_h)]
         per_row = n_row * p.n_h
         cols = np.where(s < n_row, s * p.n_h + k, per_row + np.minimum(s - n_row, n_own))
-        n_shared = 1 if p.n_p > n_row + n_own else 0
+        n_shared = 1 if p.n_obs > n_row + n_own else 0
         return cols, per_row + n_own + n_shared
 
     def _qp(

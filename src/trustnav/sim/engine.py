@@ -213,10 +213,13 @@ class MpcPolicy:
         return Decision(sol.control, stats)
 
 
-def make_mpc(model: Any, cost: Any, config: MpcConfig, solver: str = "sqp", timed: bool = False) -> MpcPolicy:
+def make_mpc(
+    model: Any, cost: Any, config: MpcConfig, solver: str = "sqp", timed: bool = False, barriers: Any = ()
+) -> MpcPolicy:
     """The one place episodes build their MPC: ``config`` (dt, R, deadline, ...) comes from the
-    scenario; ``solver`` by name (:func:`trustnav.control.make_solver`)."""
-    return MpcPolicy(MpcController(model, cost, config, make_solver(solver)), timed=timed)
+    scenario; ``solver`` by name (:func:`trustnav.control.make_solver`); ``barriers``: the
+    scenario's own (the road's edges)."""
+    return MpcPolicy(MpcController(model, cost, config, make_solver(solver), barriers=barriers), timed=timed)
 
 
 def step_histogram(ms: ArrayLike) -> dict[str, int]:

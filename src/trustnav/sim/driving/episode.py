@@ -535,6 +535,8 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "margin_violations": int(np.sum(np.any(d < radius - 1e-6, axis=1))),
         "safety_radius": radius,
         "max_lateral_offset": round(float(_lateral(r).max(initial=0.0)), 4),
+        "road_departure_max": round(_road_departure(r), 4),
+        "min_speed": round(float(r.ego[:, 3].min()), 4) if r.ego.shape[1] > 3 else None,
         "relaxed_steps": int(r.slack.sum()),
         "fallback_steps": int(r.fallbacks.sum()),
         "solver_failures": int(sum(s is SolveStatus.FAILED for s in r.statuses)),
@@ -559,6 +561,15 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         out["perception_ms_median"] = round(float(np.median(ms)), 1) if ms else None
         out["perception_ms_p95"] = round(float(np.percentile(ms, 95)), 1) if ms else None
     return out
+
+
+def _road_departure(r: DriveResult) -> float:
+    """Largest distance of the car's centre beyond the road's drivable edge (0: always on it)."""
+    road = r.scenario.road
+    a, b = np.asarray(road.start, dtype=float), np.asarray(road.end, dtype=float)
+    t = (b - a) / np.linalg.norm(b - a)
+    lateral = np.abs((r.ego[:, :2] - a) @ np.array([-t[1], t[0]]))
+    return float(np.maximum(lateral - road.width / 2, 0.0).max(initial=0.0))
 
 
 def _ms(seconds: float | None) -> float | None:
@@ -668,7 +679,8 @@ def drive(
     sc = sim.scenario
     if max_frames is not None:
         sim.max_frames = max_frames
-    policy = make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True)
+    policy = make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True,
+                      barriers=sc.control.barriers(sc.road))  # fmt: skip
 
     def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:

@@ -21,7 +21,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control import BoundedProportionalReference, KinematicBicycle, LaneTrackingCost, MpcConfig
+from trustnav.control import (
+    BoundedProportionalReference,
+    KinematicBicycle,
+    LaneTrackingCost,
+    MpcConfig,
+    RoadEdgeBarrier,
+)
 from trustnav.geometry.camera import CameraSpec
 from trustnav.perception.localisation import LocaliserConfig
 from trustnav.perception.world_tracking import WorldTrackerConfig
@@ -132,7 +138,11 @@ class ControlSpec:
     ``deadline``: the controller's wall-clock budget per step (s); large by default so that an
     episode does not depend on the machine's speed (simulated time is not wall time).
     ``confidence``: with perceived pedestrians, the probability with which R is kept from the true
-    person (R grows by the estimate's uncertainty along the line of approach)."""
+    person (R grows by the estimate's uncertainty along the line of approach). ``road_edges``: the
+    road's edges as barriers on the car's centre (:class:`~trustnav.control.RoadEdgeBarrier`),
+    ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``; off by
+    default (the paper's controller knows no road) until the attentive lane crossing is solved
+    (docs/drive.md, "Road edges in the controller")."""
 
     rate: float = 20.0
     dt: float = 0.08
@@ -145,9 +155,17 @@ class ControlSpec:
     reference_v_max: float = 8.0
     deadline: float = 10.0
     confidence: float = 0.95
+    road_edges: bool = False
+    road_margin: float = 0.9
+    road_gamma: float = 0.5
 
     def __post_init__(self) -> None:
         _positive("control rate", self.rate)
+        if not isinstance(self.road_edges, bool):
+            raise ValueError(f"[control] road_edges must be true or false, got {self.road_edges!r}")
+        _positive("road_margin", self.road_margin, allow_zero=True)
+        if not 0.0 < self.road_gamma <= 1.0:
+            raise ValueError(f"[control] road_gamma must be in (0, 1], got {self.road_gamma!r}")
         self.config()  # validates dt, horizon, R, timing, latency
         BoundedProportionalReference(self.reference_gain, self.reference_v_max)
 
@@ -167,6 +185,13 @@ class ControlSpec:
     def cost(self, start: tuple[float, float], goal: tuple[float, float]) -> LaneTrackingCost:
         ref = BoundedProportionalReference(self.reference_gain, self.reference_v_max)
         return LaneTrackingCost(start=start, goal=goal, reference=ref)
+
+    def barriers(self, road: RoadSpec) -> tuple[RoadEdgeBarrier, ...]:
+        """The road's edges for the controller (none when ``road_edges`` is off)."""
+        if not self.road_edges:
+            return ()
+        half = road.width / 2
+        return (RoadEdgeBarrier(road.start, road.end, half, half, self.road_margin, self.road_gamma),)
 
 
 @dataclass(frozen=True)
