@@ -159,6 +159,9 @@ def test_drive_refuses_realtime_perception_without_rendered_frames(capsys, tmp_p
 
     code = main(["drive", "case-1", "--sensing", "keypoints", "--perception", "realtime", "--out", str(tmp_path / "o")])
     assert code == 2 and "--perception realtime needs --sensing render" in capsys.readouterr().err
+    # below 10 frames/s its search reaches the controller too late (Case I came within R at 5)
+    assert main(["drive", "case-1", "--perception", "realtime", "--rate", "5", "--out", str(tmp_path / "o")]) == 2
+    assert "needs --rate >= 10" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
 

@@ -37,6 +37,9 @@ SCENARIO_OUTPUTS = ("paper-*.png", "metrics.json")
 DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames", "metrics.json",
                  "attentive", "distracted")  # fmt: skip
 
+#: The lowest camera rate at which ``drive --perception realtime`` is allowed (frames/s).
+REALTIME_MIN_RATE = 10.0
+
 #: option -> (type, low, high, low end open, unit): the documented range of every number an option
 #: takes (high None: no upper end). Rates and the CARLA timeout are bounded so that no run takes hours.
 BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
@@ -710,8 +713,13 @@ def _walker_arg(v: str | None) -> int | str | None:
 
 
 def _drive(args: argparse.Namespace) -> int:
-    if getattr(args, "perception", "offline") == "realtime" and (args.sensing != "render" or args.world != "sim"):
-        raise ValueError("--perception realtime needs --sensing render in trustnav's own world (--world sim)")
+    if getattr(args, "perception", "offline") == "realtime":
+        if args.sensing != "render" or args.world != "sim":
+            raise ValueError("--perception realtime needs --sensing render in trustnav's own world (--world sim)")
+        if args.rate is None or args.rate < REALTIME_MIN_RATE:
+            raise ValueError(f"--perception realtime needs --rate >= {REALTIME_MIN_RATE:g} frames/s: what its search "
+                             "finds reaches the controller a frame later, and at 5 frames/s Case I already came "
+                             "within R (docs/perception.md)")  # fmt: skip
     sc = _drive_scenario(args)
     route = ("town", "carla_fov", "attentive_walker", "distracted_walker")
     if args.world != "carla" and any(getattr(args, name, None) is not None for name in route):
