@@ -33,14 +33,15 @@ def test_realtime_mode_drops_old_frames_and_keeps_latency_bounded():
             time.sleep(0.005)
         results = sp.drain(timeout=5.0)
         stats = sp.stats
-    assert stats["submitted"] == 40 and stats["dropped"] > 20
+    assert stats["submitted"] == 40 and stats["dropped"] > 10
     assert stats["processed"] + stats["dropped"] == 40
     assert len(results) == stats["processed"]
     times = [r.capture_time for r in results]
     assert times == sorted(times) and results[-1].capture_time == pytest.approx(39 * 0.005)
     assert all(r.people == [r.capture_time] and r.error is None for r in results)
-    # a result is never older than the frame being worked on plus one waiting: ~2 steps
-    assert max(r.latency for r in results) < 0.05 * 2 + 0.08
+    # a result is never older than the frame being worked on plus one waiting (~2 steps, 0.1 s);
+    # had every frame been queued, the last would have waited ~40 steps (2 s)
+    assert max(r.latency for r in results) < 1.0
     assert [r.dropped for r in results] == sorted(r.dropped for r in results)
 
 

@@ -141,7 +141,12 @@ def _num(x: float | None) -> float | None:
 
 
 def _record(name: str, tp: TrackedPerson, estimator: TrustEstimator, sequence: str | None = None) -> dict:
-    st = estimator.tracks[tp.track_id]
+    st = estimator.tracks.get(tp.track_id)
+    if st is None:  # carried on from a fit but never measured under this track ID: no trust yet
+        none = dict.fromkeys(("fluctuation", "smartphone_trait", "eye_trait", "pose_trait", "score", "trust"))
+        rec = {"frame": name, "track_id": tp.track_id, "bbox": [round(float(v), 1) for v in tp.person.bbox],
+               "eye_contact": _num(tp.eye_contact), "phone": _num(tp.phone), **none}  # fmt: skip
+        return rec if sequence is None else {**rec, "sequence": sequence}
     rec = {
         "frame": name,
         "track_id": tp.track_id,
@@ -189,7 +194,10 @@ def estimate(
         else:
             try:
                 result.people = pipeline(item.frame, time=t)
-                estimator.update(pipeline.observations(result.people, t), time=t)
+                # a person the real-time backend only carried by its velocity was not measured on
+                # this frame: reported, but no evidence for trust
+                measured = [tp for tp in result.people if not tp.person.extra.get("predicted")]
+                estimator.update(pipeline.observations(measured, t), time=t)
                 result.records = [_record(item.name, tp, estimator, sequence) for tp in result.people]
                 result.timing = dict(pipeline.last_timing)
             except Exception as exc:  # one bad frame never stops the sequence
