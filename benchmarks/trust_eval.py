@@ -204,12 +204,17 @@ def inputs_of(name: str, labels: Mapping[str, Any], cache: Path) -> list[Path]:
     return [base / f for f in labels["frames"]]
 
 
+def _frame_files(folder: Path) -> list[Path]:
+    """The image files of a frame folder, in name order."""
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+
+
 def mp4_of(folder: Path, out: Path, fps: float = 10.0) -> tuple[Path, float]:
     """The frames of ``folder`` written as an MP4 (OpenCV's mp4v, its default quality) and the mean
     PSNR (dB) of the decoded frames against the originals."""
     import cv2
 
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+    files = _frame_files(folder)
     frames = [cv2.imread(str(f)) for f in files]
     h, w = frames[0].shape[:2]
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -233,7 +238,7 @@ def mp4_of(folder: Path, out: Path, fps: float = 10.0) -> tuple[Path, float]:
 def video_records(records: Sequence[Mapping[str, Any]], folder: Path) -> list[dict[str, Any]]:
     """``tracks.json`` records of a video made by :func:`mp4_of`, their frames ("NAME#i") renamed to
     the source folder's i-th file, so that the folder's labels apply."""
-    files = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+    files = [p.name for p in _frame_files(folder)]
     return [{**r, "frame": files[int(str(r["frame"]).rsplit("#", 1)[1])]} for r in records]
 
 

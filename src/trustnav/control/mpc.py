@@ -198,20 +198,18 @@ class MpcController:
             c = self.config
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
-        detour = None
+        detour, tracked = None, p.cost
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
             radii = self.config.safety_radius + (np.zeros(len(peds)) if margins is None else margins)
             speed = float(np.hypot(*self._last_control[:2]))
-            waypoint = self._deadlock.goal(x[:2], speed, np.asarray(p.cost.goal, dtype=float), peds, radii)
+            waypoint = self._deadlock.goal(x[:2], speed, np.asarray(tracked.goal, dtype=float), peds, radii)
             detour = self._deadlock.note
             if waypoint is not None:
-                tracked, p.cost = p.cost, replace(p.cost, goal=(float(waypoint[0]), float(waypoint[1])))
-                try:
-                    p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
-                finally:
-                    p.cost = tracked
-        if self._deadlock is None or waypoint is None:
+                p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
+        try:
             p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
+        finally:
+            p.cost = tracked
         shifted = None
         if self._plan is not None:  # the previous plan shifted by one step, its last input held
             shifted = np.empty_like(self._plan)

@@ -557,7 +557,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
              "false_positives": f.false_positives, "perception_ms": _ms(f.timing.get("perception"))}
             for f in r.frames
         ]  # fmt: skip
-        ms = [1e3 * f.timing["perception"] for f in r.frames if "perception" in f.timing]
+        ms = [f["perception_ms"] for f in out["per_frame"] if f["perception_ms"] is not None]
         out["perception_ms_median"] = round(float(np.median(ms)), 1) if ms else None
         out["perception_ms_p95"] = round(float(np.percentile(ms, 95)), 1) if ms else None
     return out
@@ -566,10 +566,16 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
 def _road_departure(r: DriveResult) -> float:
     """Largest distance of the car's centre beyond the road's drivable edge (0: always on it)."""
     road = r.scenario.road
-    a, b = np.asarray(road.start, dtype=float), np.asarray(road.end, dtype=float)
-    t = (b - a) / np.linalg.norm(b - a)
-    lateral = np.abs((r.ego[:, :2] - a) @ np.array([-t[1], t[0]]))
+    lateral = _distance_from_line(r.ego[:, :2], road.start, road.end)
     return float(np.maximum(lateral - road.width / 2, 0.0).max(initial=0.0))
+
+
+def _distance_from_line(points: NDArray[np.float64], a: Any, b: Any) -> NDArray[np.float64]:
+    """Distance of each point from the straight line through ``a`` and ``b``."""
+    a = np.asarray(a, dtype=float)
+    t = np.asarray(b, dtype=float) - a
+    t /= np.linalg.norm(t)
+    return np.abs((points - a) @ np.array([-t[1], t[0]]))
 
 
 def _ms(seconds: float | None) -> float | None:
@@ -605,12 +611,8 @@ def _id_switches(r: DriveResult, j: int) -> int:
 
 
 def _lateral(r: DriveResult) -> NDArray[np.float64]:
-    """Signed distance of the ego from its reference line (start -> goal), left positive, per sample."""
-    a = np.asarray(r.scenario.ego_start)
-    t = np.asarray(r.scenario.goal) - a
-    t /= np.linalg.norm(t)
-    n = np.array([-t[1], t[0]])
-    return np.abs((r.ego[:, :2] - a) @ n)
+    """Distance of the ego from its reference line (start -> goal), per sample."""
+    return _distance_from_line(r.ego[:, :2], r.scenario.ego_start, r.scenario.goal)
 
 
 def run_drive(
