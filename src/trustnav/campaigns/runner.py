@@ -89,8 +89,14 @@ def _sigint_held() -> Iterator[None]:
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old_handler)
-        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)  # a pending Ctrl-C is delivered here
+        # the mask first, while our handler is still in place: a Ctrl-C that the kernel gave to
+        # another thread (one with SIGINT unblocked) can reach Python's handler at any bytecode; were
+        # the default handler back first, its KeyboardInterrupt could cut this block short and leave
+        # SIGINT blocked in the main thread for good
+        try:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)  # a pending Ctrl-C is delivered here
+        finally:
+            signal.signal(signal.SIGINT, old_handler)
     if caught:
         raise KeyboardInterrupt
 
