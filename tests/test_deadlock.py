@@ -3,11 +3,15 @@ pedestrians when there is room, says so when there is none, and never enters R f
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from trustnav.control import MpcConfig, MpcController, SingleIntegrator, VelocityTrackingCost
-from trustnav.control.deadlock import DeadlockConfig, DeadlockResolver
+from trustnav.control.deadlock import DeadlockConfig, DeadlockResolver, plan_route
 from trustnav.control.reference import BoundedProportionalReference
 
 DEFAULT = DeadlockConfig()
@@ -68,3 +72,37 @@ def test_deadlock_config_is_validated():
     # moving, or nobody ahead: the goal itself
     assert r.goal(np.zeros(2), 1.0, np.array([30.0, 0.0]), WEDGE, np.full(2, 3.0)) is None
     assert r.goal(np.zeros(2), 0.0, np.array([30.0, 0.0]), -WEDGE - 20.0, np.full(2, 3.0)) is None
+
+
+# a cup of static pedestrians open toward the car: no straight detour beside the group exists,
+# the way around starts by backing out of the cup
+CUP = np.array([[12.0, 0.0], [11.0, 5.5], [11.0, -5.5], [8.0, 9.5], [8.0, -9.5]])
+
+
+def test_a_cup_open_toward_the_car_is_backed_out_of_and_gone_around():
+    x, dmin, notes = _drive(CUP, steps=1200)
+    assert np.hypot(*(x - (30.0, 0.0))) < 0.25
+    assert dmin >= 3.0 - 1e-6
+    assert any(n is not None and n.startswith("wedged: going around") for n in notes)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    peds=st.lists(st.tuples(st.floats(-5.0, 35.0), st.floats(-12.0, 12.0)), min_size=1, max_size=12),
+    radius=st.floats(1.0, 4.0),
+)
+def test_every_leg_of_a_planned_route_keeps_out_of_every_r(peds, radius):
+    p = np.array(peds)
+    r = np.full(len(p), radius)
+    start, goal = np.zeros(2), np.array([30.0, 0.0])
+    assume(bool((np.hypot(*(p - start).T) >= radius).all() and (np.hypot(*(p - goal).T) >= radius + 0.5).all()))
+    route = plan_route(start, goal, p, r, DEFAULT)
+    if route is None:
+        return
+    points = [start, *route, goal]
+    for a, b in itertools.pairwise(points):
+        ab = b - a
+        t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+        closest = np.hypot(*(p - (a + t[:, None] * ab)).T)
+        start_d = np.hypot(*(p - a).T)
+        assert ((closest >= r - 1e-9) | (closest >= start_d - 1e-9)).all()
