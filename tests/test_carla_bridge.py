@@ -691,3 +691,30 @@ def test_drive_builds_real_carla_values_where_installed(server, listening_port):
     ego = next(a for a in server.spawned if isinstance(a, _Vehicle))
     assert isinstance(ego.control, carla.VehicleControl)
     _assert_clean(server)
+
+
+def test_render_sensing_on_carla_takes_the_realtime_perceiver_when_asked(monkeypatch, tmp_path, server,
+                                                                        listening_port):  # fmt: skip
+    """``--world carla --sensing render --perception realtime``: CARLA's images go through the same
+    perception as trustnav's renders, with the realtime pose backend (issue 20: the CARLA bridge
+    uses the streaming perceiver); the backend is closed when the run ends."""
+    import trustnav.sim.driving.sensing as sensing
+    from trustnav.perception.realtime import RealtimePoseBackend
+
+    monkeypatch.setitem(sys.modules, "carla", fake_carla(server))
+    built = []
+    make = sensing.make_render_pipeline
+
+    def spy(sc, rate=None, realtime=False):
+        built.append(make(sc, rate, realtime=realtime))
+        built[-1].backend.close = lambda *a, **k: closed.append(True)  # the run must close it
+        return built[-1]
+
+    closed: list[bool] = []
+    monkeypatch.setattr(sensing, "make_render_pipeline", spy)
+    args = _args(listening_port, tmp_path, sensing="render", perception="realtime", rate=10.0, duration=0.3,
+                 attentive=True)  # fmt: skip
+    assert run_carla_drive(args) == 0
+    assert len(built) == 1 and isinstance(built[0].backend, RealtimePoseBackend) and closed == [True]
+    _assert_clean(server)
+    RealtimePoseBackend.close(built[0].backend)

@@ -714,8 +714,8 @@ def _walker_arg(v: str | None) -> int | str | None:
 
 def _drive(args: argparse.Namespace) -> int:
     if getattr(args, "perception", "offline") == "realtime":
-        if args.sensing != "render" or args.world != "sim":
-            raise ValueError("--perception realtime needs --sensing render in trustnav's own world (--world sim)")
+        if args.sensing != "render":
+            raise ValueError("--perception realtime needs --sensing render (camera frames to perceive)")
         if args.rate is None or args.rate < REALTIME_MIN_RATE:
             raise ValueError(f"--perception realtime needs --rate >= {REALTIME_MIN_RATE:g} frames/s: what its search "
                              "finds reaches the controller a frame later, and at 5 frames/s Case I already came "

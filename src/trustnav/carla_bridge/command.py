@@ -65,7 +65,12 @@ def _run_variant(
 ) -> Any:  # fmt: skip
     from trustnav.carla_bridge.world import run_carla_drive_episode
 
-    pipeline = _pipeline(sc, args.rate) if args.sensing == "render" else None
+    pipeline = None
+    if args.sensing == "render":
+        from trustnav.sim.driving.sensing import make_render_pipeline
+
+        realtime = getattr(args, "perception", "offline") == "realtime"
+        pipeline = make_render_pipeline(sc, args.rate, realtime=realtime)
 
     def report(session: Any) -> None:
         print(f"CARLA {session.server_version} at {options.address}, map {session.map_name}, "
@@ -80,14 +85,3 @@ def _run_variant(
     finally:
         if pipeline is not None and hasattr(pipeline.backend, "close"):
             pipeline.backend.close()
-
-
-def _pipeline(sc: Any, rate: float | None) -> Any:
-    """trustnav.perception on CARLA's frames, as render sensing runs it on trustnav's renders."""
-    from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
-    from trustnav.perception.pipeline import PerceptionPipeline
-    from trustnav.perception.tracking import PersonTracker
-    from trustnav.sim.driving.sensing import looking_model
-
-    fps = float(rate or sc.camera.rate)
-    return PerceptionPipeline(MediaPipePoseBackend(video=fps >= 5.0), PersonTracker(fps=fps), looking_model())

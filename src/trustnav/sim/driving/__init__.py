@@ -23,6 +23,7 @@ __all__ = [
     "drive",
     "drive_metrics",
     "load_drive_scenario",
+    "make_render_pipeline",
     "make_render_sensing",
     "run_drive",
 ]
@@ -38,6 +39,7 @@ _WHERE = {
     "drive": "episode",
     "drive_metrics": "episode",
     "run_drive": "episode",
+    "make_render_pipeline": "sensing",
     "make_render_sensing": "sensing",
 }
 

@@ -50,6 +50,7 @@ __all__ = [
     "RenderSensor",
     "SensedPerson",
     "TrustTracker",
+    "make_render_pipeline",
     "make_render_sensing",
     "projected_box",
 ]
@@ -364,25 +365,30 @@ class TrustTracker:
 
 def make_render_sensing(scenario: Any, capture_rate: float | None = None, realtime: bool = False) -> tuple[Any, Any]:
     """(renderer, perception pipeline) for render sensing: PyBullet's CPU renderer of the scenario's
-    street and trustnav.perception (MediaPipe BlazePose, OC-SORT tracking at the capture rate,
-    LOOKING, the phone classifier). BlazePose's video mode (following people from their landmarks
-    between detections) only from 5 frames/s: at 1 frame/s a car moves metres between frames and
-    the follower left a stray box where a person had been. ``realtime``: the pose backend is
+    street and :func:`make_render_pipeline`. Close the renderer and the backend when done."""
+    from trustnav.sim.driving.render import PyBulletRenderer
+
+    return PyBulletRenderer(street_of(scenario)), make_render_pipeline(scenario, capture_rate, realtime)
+
+
+def make_render_pipeline(scenario: Any, capture_rate: float | None = None, realtime: bool = False) -> Any:
+    """trustnav.perception for a drive's camera frames (trustnav's renders or CARLA's images):
+    MediaPipe BlazePose, OC-SORT tracking at the capture rate, LOOKING, the phone classifier.
+    BlazePose's video mode (following people from their landmarks between detections) only from
+    5 frames/s: at 1 frame/s a car moves metres between frames and the follower left a stray box
+    where a person had been. ``realtime``: the pose backend is
     :class:`~trustnav.perception.realtime.RealtimePoseBackend` (the search for new people runs
     beside the frame loop; what it finds then depends on the machine's speed and load). Close the
-    renderer and the backend when done."""
+    backend when done."""
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
     from trustnav.perception.pipeline import PerceptionPipeline
     from trustnav.perception.tracking import PersonTracker
-    from trustnav.sim.driving.render import PyBulletRenderer
 
     fps = float(capture_rate or scenario.camera.rate)
-    renderer = PyBulletRenderer(street_of(scenario))
     if realtime:
         from trustnav.perception.realtime import RealtimePoseBackend
 
         backend: Any = RealtimePoseBackend()
     else:
         backend = MediaPipePoseBackend(video=fps >= 5.0)
-    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
-    return renderer, pipeline
+    return PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
