@@ -1,8 +1,10 @@
-"""The road's edges in the controller (issue 21 item 1, opt-in): a car that may not swerve past the
-kerb brakes for a distracted crosser, lets them cross and goes on; user barriers can be relaxed."""
+"""The road's edges in the controller (issue 21 item 1, on by default in the drive): a car that may
+not swerve past the kerb brakes for a crosser, lets them cross and goes on, whatever their trust;
+user barriers can be relaxed."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -40,13 +42,71 @@ def test_a_relaxed_step_with_a_user_barrier_is_solved_and_reported():
     assert sol.control[1] < 0  # it brakes
 
 
+def _lane_car(peds_on_road: bool = True, **config):
+    cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0), reference=BoundedProportionalReference(1.0, 8.0))
+    road = RoadEdgeBarrier((0.0, 0.0), (300.0, 0.0), left=3.0, right=3.0, margin=0.9)
+    cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, deterministic=True, **config)
+    return MpcController(KinematicBicycle(), cost, cfg, barriers=[road] if peds_on_road else [])
+
+
+def _drive_lane(ctl, ped, vel, steps=250):
+    """The car at 8 m/s from x = 0 on the road y in [-3, 3]; one pedestrian; returns the car's
+    path, the closest approach and the notes of the route layer."""
+    x = np.array([0.0, 0.0, 0.0, 8.0])
+    model, path, dmin, notes = KinematicBicycle(), [], np.inf, []
+    p, v = np.array(ped, dtype=float), np.array(vel, dtype=float)
+    for _ in range(steps):
+        sol = ctl.step(x, p[None], v[None], np.array([0.9]))
+        notes.append(sol.detour)
+        x = model.step(x, sol.control, 0.08)
+        p = p + v * 0.08
+        path.append(x.copy())
+        dmin = min(dmin, float(np.hypot(*(x[:2] - p))))
+    return np.array(path), dmin, notes
+
+
+def test_a_car_on_a_road_stops_short_of_someone_standing_in_its_lane_and_says_so():
+    path, dmin, notes = _drive_lane(_lane_car(), (40.0, 0.2), (0.0, 0.0))
+    assert np.abs(path[:, 1]).max() <= 2.1 + 1e-3  # never past the road's edge (less half the car)
+    assert dmin >= 2.5 and path[-1, 3] < 0.1 and path[-1, 0] < 40.0 - 2.5  # waiting short of them
+    assert any(n is not None and n.startswith("yielding") for n in notes)
+
+
+def test_without_the_road_the_car_swerves_round_them_and_yielding_off_keeps_the_mpc_alone():
+    path, _, notes = _drive_lane(_lane_car(peds_on_road=False), (40.0, 0.2), (0.0, 0.0))
+    assert path[-1, 0] > 45.0 and np.abs(path[:, 1]).max() > 2.1  # past them, off the road
+    assert all(n is None for n in notes)
+    _, _, notes = _drive_lane(_lane_car(yielding=None), (40.0, 0.2), (0.0, 0.0), steps=50)
+    assert all(n is None for n in notes)
+
+
+def test_a_crosser_is_passed_behind_once_across():
+    # walking right (-y) across the road at 1 m/s from the left kerb, 35 m ahead of the car
+    path, dmin, notes = _drive_lane(_lane_car(), (35.0, 4.5), (0.0, -1.0), steps=300)
+    assert np.abs(path[:, 1]).max() <= 2.1 + 1e-3 and dmin >= 2.5
+    assert path[-1, 0] > 60.0  # went on once the crosser was across
+    assert any(n is not None and n.startswith("yielding") for n in notes)
+    crossing = path[np.argmin(np.abs(path[:, 0] - 35.0)), 1]  # where the car passed the crossing line
+    assert crossing >= -0.5  # on the side the crosser came from (behind them)
+
+
 @pytest.mark.slow
-def test_a_distracted_crosser_is_waited_for_on_the_road():
+@pytest.mark.parametrize("attentive", [False, True], ids=["distracted", "attentive"])
+def test_a_crosser_is_waited_for_on_the_road_whatever_their_trust(attentive):
     from trustnav.sim.driving import load_drive_scenario, run_drive
 
     sc = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
     assert sc.control.road_edges
-    m = run_drive(sc, sensing="keypoints", attentive=False).metrics()
+    m = run_drive(sc, sensing="keypoints", attentive=attentive).metrics()
     assert m["road_departure_max"] == 0.0 and m["margin_violations"] == 0 and m["reached_goal"]
-    assert m["min_speed"] < 2.0  # it slowed down for the crosser
+    assert m["yield_s"] > 1.0  # it held back for the crosser
     assert m["pedestrians"][0]["min_distance"] >= sc.control.safety_radius
+
+
+def test_the_drive_has_road_edges_by_default_and_false_is_the_papers_controller():
+    from trustnav.sim.driving import load_drive_scenario
+
+    sc = load_drive_scenario("case-1")
+    assert sc.control.road_edges and len(sc.control.barriers(sc.road)) == 1
+    off = dataclasses.replace(sc.control, road_edges=False)
+    assert off.barriers(sc.road) == ()

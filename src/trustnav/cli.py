@@ -660,6 +660,10 @@ def _drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
         extra = f"  detection recall {m['detection_recall']:.2f}" if m.get("detection_recall") is not None else ""
         if m.get("perception_ms_median") is not None:
             extra += f"  perception {m['perception_ms_median']:.0f} ms (p95 {m['perception_ms_p95']:.0f})"
+        if m.get("road_departure_max"):
+            extra += f"  off the road by up to {m['road_departure_max']:.2f} m"
+        if m.get("yield_s"):
+            extra += f"  yielded {m['yield_s']:.1f} s"
         print(f"  {tag}: goal {ttg}  margin violations {m['margin_violations']}  relaxed steps "
               f"{m['relaxed_steps']}  fallback steps {m['fallback_steps']}  solve {m['solve_ms_median']:.2f} ms "
               f"(p95 {m['solve_ms_p95']:.2f}){extra}  -> {where}")  # fmt: skip

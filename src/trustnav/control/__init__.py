@@ -15,6 +15,7 @@ from trustnav.control.barrier import (
     predict_pedestrians,
 )
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, TrackingWeights, VelocityTrackingCost
+from trustnav.control.deadlock import DeadlockConfig
 from trustnav.control.models import Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
 from trustnav.control.mpc import MpcController, MpcSolution
 from trustnav.control.problem import (
@@ -35,6 +36,7 @@ from trustnav.control.solvers import (
     make_solver,
     rank_key,
 )
+from trustnav.control.yielding import YieldConfig
 
 __all__ = [
     "FUSED_KERNELS",
@@ -44,6 +46,7 @@ __all__ = [
     "BicycleProblem",
     "BoundedProportionalReference",
     "Cost",
+    "DeadlockConfig",
     "Dynamics",
     "DynamicsModel",
     "KinematicBicycle",
@@ -63,6 +66,7 @@ __all__ = [
     "SqpSolver",
     "TrackingWeights",
     "VelocityTrackingCost",
+    "YieldConfig",
     "barrier",
     "cbf_rows",
     "continuous_time_radius",

@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control.barrier import Barrier, uncertainty_margins
-from trustnav.control.costs import Cost, VelocityTrackingCost
+from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
+from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics
 from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians
@@ -32,6 +32,7 @@ from trustnav.control.solvers import (
     SqpSolver,
     rank_key,
 )
+from trustnav.control.yielding import Yielder
 from trustnav.trust.params import as_number
 
 __all__ = ["MpcController", "MpcSolution"]
@@ -61,7 +62,7 @@ class MpcSolution:
     deadline_hit: bool = False  # the step deadline cut the solve short
     state_violation: float = 0.0  # worst break of the model's hard state limits (bicycle: v < speed_min), m/s
     state_repaired: bool = False  # the chosen plan broke a state limit and was repaired or replaced by braking
-    detour: str | None = None  # the deadlock layer's note: going around a group, or no room to (None: not wedged)
+    detour: str | None = None  # the route layer's note: going around a group, no room to, yielding (None: nothing)
 
 
 class MpcController:
@@ -92,6 +93,10 @@ class MpcController:
         self._deadlock = None
         if self.config.deadlock is not None and isinstance(self.problem.cost, VelocityTrackingCost):
             self._deadlock = DeadlockResolver(self.config.deadlock, self.config.dt)
+        self._yielder, self._road = None, None  # a car on a road: brake and wait for who it cannot pass
+        roads = [b for b in self.problem.barriers if isinstance(b, RoadEdgeBarrier)]
+        if self.config.yielding is not None and isinstance(self.problem.cost, LaneTrackingCost) and roads:
+            self._yielder, self._road = Yielder(self.config.yielding), roads[0]
         self._warm_up()
         self.reset()
 
@@ -206,6 +211,17 @@ class MpcController:
             detour = self._deadlock.note
             if waypoint is not None:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
+        if self._yielder is not None and len(peds):  # the yielding layer may stop the car short of someone
+            road, lane = self._road, p.cost
+            radii = self.config.safety_radius + (np.zeros(len(peds)) if margins is None else margins)
+            stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
+                                        np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
+                                        peds, vels, radii)  # fmt: skip
+            if stop is not None:
+                ref = lane.reference
+                capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
+                p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
+                detour = stop.note
         try:
             p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
         finally:

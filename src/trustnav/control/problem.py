@@ -40,6 +40,7 @@ from trustnav.control.costs import (
 )
 from trustnav.control.deadlock import DeadlockConfig
 from trustnav.control.models import Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
+from trustnav.control.yielding import YieldConfig
 from trustnav.trust import PAPER_GAMMA_NUMERICAL, GammaParams, gamma
 
 __all__ = [
@@ -73,7 +74,11 @@ class MpcConfig:
 
     ``deadlock``: the route layer that takes a wedged vehicle around a group of pedestrians
     (:mod:`~trustnav.control.deadlock`; costs that track a goal with a planar velocity); None: the
-    paper's plain controller, which stops for good when wedged (the paper's presets use None)."""
+    paper's plain controller, which stops for good when wedged (the paper's presets use None).
+
+    ``yielding``: the layer that makes a car on a lane brake and wait for a pedestrian it cannot
+    pass without leaving the road (:mod:`~trustnav.control.yielding`; a ``LaneTrackingCost`` with a
+    ``RoadEdgeBarrier``); None: the MPC alone."""
 
     horizon: int = 7
     dt: float = 0.05
@@ -85,6 +90,7 @@ class MpcConfig:
     confidence: float = 0.95
     deterministic: bool = False
     deadlock: DeadlockConfig | None = field(default_factory=DeadlockConfig)
+    yielding: YieldConfig | None = field(default_factory=YieldConfig)
 
     @property
     def step_deadline(self) -> float:
@@ -109,6 +115,8 @@ class MpcConfig:
             raise ValueError(f"deterministic must be True or False, got {self.deterministic!r}")
         if self.deadlock is not None and not isinstance(self.deadlock, DeadlockConfig):
             raise ValueError(f"deadlock must be a DeadlockConfig or None, got {self.deadlock!r}")
+        if self.yielding is not None and not isinstance(self.yielding, YieldConfig):
+            raise ValueError(f"yielding must be a YieldConfig or None, got {self.yielding!r}")
 
 
 MAX_COORDINATE = 1e12  # m; beyond it float64 spacing exceeds 0.1 mm

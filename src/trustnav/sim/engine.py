@@ -116,6 +116,7 @@ class StepStats:
     solve_time: float = math.nan  # s, as the controller measured it
     plan: NDArray[np.float64] | None = None  # predicted states (N_h + 1, n_x)
     relaxed_feasible: bool | None = None  # independent check of a relaxed step (None: not checked)
+    route: str | None = None  # the route layer's note (going around a group, yielding), None: nothing
 
 
 @dataclass(frozen=True)
@@ -209,6 +210,7 @@ class MpcPolicy:
             deadline_hit=bool(sol.deadline_hit),
             solve_time=float(sol.solve_time),
             plan=sol.predicted_states,
+            route=sol.detour,
         )
         return Decision(sol.control, stats)
 

@@ -490,11 +490,20 @@ class DriveResult:
         return topview.top_view_image(self, i, size, estimates=self.estimates_at(i) or None)
 
 
+def _yield_seconds(r: DriveResult) -> float | None:
+    """Seconds the controller's yielding layer held the car back (None: no engine record)."""
+    if r.episode is None:
+        return None
+    steps = sum(1 for s in r.episode.stats if s.route is not None and s.route.startswith("yielding"))
+    return round(steps / r.scenario.control.rate, 3)
+
+
 def drive_metrics(r: DriveResult) -> dict[str, Any]:
     """metrics.json: per pedestrian (scenario order) name, attentive, min_distance, final_trust,
     frames_seen, trust after the first observation and mean gain per frame; reached_goal,
     time_to_goal (s or null), margin_violations (control steps with some distance < R),
-    relaxed_steps, fallback_steps, solve times; render mode adds detection_recall and the wall time
+    yield_s (seconds the yielding layer held the car back for a pedestrian it could not pass on the
+    road), relaxed_steps, fallback_steps, solve times; render mode adds detection_recall and the wall time
     perception took per frame (``per_frame[...]["perception_ms"]``, median and p95). Distances are
     always the true ones. With perceived states (``state``), per pedestrian the localisation
     error of its track after each frame that saw it (median, p95, m), the velocity error
@@ -537,6 +546,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "max_lateral_offset": round(float(_lateral(r).max(initial=0.0)), 4),
         "road_departure_max": round(_road_departure(r), 4),
         "min_speed": round(float(r.ego[:, 3].min()), 4) if r.ego.shape[1] > 3 else None,
+        "yield_s": _yield_seconds(r),
         "relaxed_steps": int(r.slack.sum()),
         "fallback_steps": int(r.fallbacks.sum()),
         "solver_failures": int(sum(s is SolveStatus.FAILED for s in r.statuses)),

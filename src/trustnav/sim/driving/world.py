@@ -140,9 +140,10 @@ class ControlSpec:
     ``confidence``: with perceived pedestrians, the probability with which R is kept from the true
     person (R grows by the estimate's uncertainty along the line of approach). ``road_edges``: the
     road's edges as barriers on the car's centre (:class:`~trustnav.control.RoadEdgeBarrier`),
-    ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``; off by
-    default (the paper's controller knows no road) until the attentive lane crossing is solved
-    (docs/drive.md, "Road edges in the controller")."""
+    ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``, with
+    the controller's yielding layer (:mod:`~trustnav.control.yielding`: the car brakes and waits for a
+    pedestrian it cannot pass on the road); on by default, ``road_edges = false`` is the paper's
+    controller, which knows no road (docs/drive.md, "Road edges in the controller")."""
 
     rate: float = 20.0
     dt: float = 0.08
@@ -155,7 +156,7 @@ class ControlSpec:
     reference_v_max: float = 8.0
     deadline: float = 10.0
     confidence: float = 0.95
-    road_edges: bool = False
+    road_edges: bool = True
     road_margin: float = 0.9
     road_gamma: float = 0.5
 

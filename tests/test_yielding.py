@@ -1,0 +1,76 @@
+"""Yielding (issue 21 item 1): a car on a road with its edges as barriers stops short of a
+pedestrian it cannot pass on the road, passes crossers only behind, and drives on otherwise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trustnav.control.yielding import YieldConfig, Yielder
+
+# a road along +x: its line y = 0, left (+y) and right room 2.1 m for the car's centre (6 m road,
+# 0.9 m half car); the car's lane is the road's line
+ROAD = {
+    "lane_start": np.array([0.0, 0.0]),
+    "lane_goal": np.array([100.0, 0.0]),
+    "road_start": np.array([0.0, 0.0]),
+    "road_normal": np.array([0.0, 1.0]),
+    "room": (2.1, 2.1),
+}
+Y = Yielder(YieldConfig())
+R = np.array([2.5])
+
+
+def _decide(ped, vel, car=(0.0, 0.0), speed=8.0, radii=R):
+    return Y.decide(np.array(car), speed, pedestrians=np.array([ped]), velocities=np.array([vel]), radii=radii, **ROAD)
+
+
+def test_a_pedestrian_standing_in_the_lane_is_stopped_for_short_of_r():
+    d = _decide((30.0, 0.0), (0.0, 0.0))
+    assert d is not None and d.pedestrian == 0
+    np.testing.assert_allclose(d.stop, [30.0 - 2.5 - 1.0, 0.0])  # R + gap short of them
+    assert d.speed_cap == pytest.approx(np.sqrt(2 * 3.0 * 26.5))
+    assert d.note.startswith("yielding")
+
+
+def test_a_pedestrian_the_car_can_pass_at_r_on_the_road_is_not_yielded_to():
+    assert _decide((30.0, 4.0), (0.0, 0.0)) is None  # on the kerb: pass at y <= 1.5
+    assert _decide((30.0, -1.0), (0.0, 0.0)) is None  # pass on their left at y = 1.5 <= 2.0
+    assert _decide((-10.0, 0.0), (0.0, 0.0)) is None  # behind the car
+
+
+def test_a_crosser_is_passed_only_behind():
+    # walking right (-y) from the left sidewalk: the left side (behind them) has no room yet, and
+    # the right side is where they walk to, so the car yields
+    d = _decide((25.0, 4.2), (0.0, -1.0))
+    assert d is not None
+    # the same person standing there leaves room on the right: no yield
+    assert _decide((25.0, 4.2), (0.0, 0.0)) is None
+    # once they are far enough across, the car passes behind them (on their left)
+    assert _decide((25.0, -0.6), (0.0, -1.0)) is None
+
+
+def test_the_car_goes_first_only_when_it_is_past_well_before_they_block():
+    # a walker 5 m off the road's edge at 1 m/s comes within R of the car's corridor after 3.4 s;
+    # at 15 m/s a car 10 m short is past them (and R) in 0.8 s: no yield; slower, it must yield
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0) is None
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=4.0) is not None
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=0.0) is not None
+
+
+def test_uncertainty_widens_who_blocks():
+    assert _decide((30.0, -1.0), (0.0, 0.0)) is None
+    assert _decide((30.0, -1.0), (0.0, 0.0), radii=np.array([3.5])) is not None
+
+
+def test_the_stop_is_on_the_lane_and_the_cap_brakes_there():
+    d = _decide((12.0, 0.0), (0.0, 0.0), car=(10.0, 0.0))  # already closer than R + gap
+    assert d.speed_cap == 0.0 and d.note.startswith("yielding: waiting")
+    assert d.stop[1] == 0.0 and 0.0 < d.stop[0] <= 10.0
+
+
+def test_yield_config_is_validated():
+    with pytest.raises(ValueError, match="lookahead"):
+        YieldConfig(lookahead=0.0)
+    with pytest.raises(ValueError, match="deceleration"):
+        YieldConfig(deceleration=float("inf"))
