@@ -110,3 +110,17 @@ def test_the_drive_has_road_edges_by_default_and_false_is_the_papers_controller(
     assert sc.control.road_edges and len(sc.control.barriers(sc.road)) == 1
     off = dataclasses.replace(sc.control, road_edges=False)
     assert off.barriers(sc.road) == ()
+
+
+@pytest.mark.slow
+def test_a_pedestrian_waiting_at_the_kerb_for_a_gap_and_a_yielding_car_do_not_wait_for_each_other():
+    """kerb-gap.toml: she waits while the car would reach her within 4 s; a car that yields gives her
+    the gap. Neither waits for ever: she crosses, the car goes on, on the road and outside R."""
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+
+    sc = load_drive_scenario(ROOT / "examples" / "scenarios" / "kerb-gap.toml")
+    r = run_drive(sc, sensing="keypoints")
+    m = r.metrics()
+    assert m["reached_goal"] and m["road_departure_max"] == 0.0 and m["margin_violations"] == 0
+    assert m["yield_s"] > 1.0
+    assert r.pedestrians[-1, 0, 0] < 31.0  # she crossed (from x = 40.5 to the far side)
