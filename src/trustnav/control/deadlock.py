@@ -38,6 +38,8 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from trustnav.control._validate import require_positive
+
 __all__ = ["DeadlockConfig", "DeadlockResolver", "plan_route"]
 
 MAX_CELLS = 80_000  # the grid is coarsened beyond this many cells (planning stays a few ms)
@@ -58,13 +60,8 @@ class DeadlockConfig:
     proximity_cost: float = 4.0
 
     def __post_init__(self) -> None:
-        for name in ("stall_speed", "stall_time", "clearance", "reach", "max_detour_time", "search_margin", "cell"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
-                raise ValueError(f"deadlock {name} must be a positive finite number, got {v!r}")
-        v = self.proximity_cost
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf:
-            raise ValueError(f"deadlock proximity_cost must be a finite number >= 0, got {v!r}")
+        names = ("stall_speed", "stall_time", "clearance", "reach", "max_detour_time", "search_margin", "cell")
+        require_positive("deadlock", self, (*names, "proximity_cost"), zero_ok=("proximity_cost",))
 
 
 class DeadlockResolver:

@@ -34,6 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.control._validate import require_positive
+
 __all__ = ["YieldConfig", "YieldDecision", "Yielder"]
 
 
@@ -51,10 +53,8 @@ class YieldConfig:
     clear_time: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("lookahead", "sample", "deceleration", "gap", "tolerance", "crossing_speed", "clear_time"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
-                raise ValueError(f"yielding {name} must be a positive finite number, got {v!r}")
+        names = ("lookahead", "sample", "deceleration", "gap", "tolerance", "crossing_speed", "clear_time")
+        require_positive("yielding", self, names)
 
 
 @dataclass(frozen=True)
