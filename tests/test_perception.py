@@ -543,12 +543,14 @@ def test_a_users_cue_and_trait_plug_into_pipeline_and_estimator(make_pipeline, l
 
 
 def test_pipeline_cues_default_to_the_papers_and_are_checked(make_pipeline, looking_model):
-    from trustnav.perception.cues import EyeContactCue, PhoneUseCue
+    from trustnav.perception.cues import FaceEyeContactCue, PhoneUseCue
     from trustnav.perception.pipeline import PerceptionPipeline
     from trustnav.perception.tracking import PersonTracker
 
     pipe = make_pipeline(_ScriptedBackend([[_walker(10)]]))
-    assert [type(c) for c in pipe.cues] == [EyeContactCue, PhoneUseCue]
+    # eye contact: LOOKING fused with the face (near people only), with the both-hands posture veto
+    assert [type(c) for c in pipe.cues] == [FaceEyeContactCue, PhoneUseCue]
+    assert isinstance(pipe.cues[0].posture, PoseGeometryPhoneClassifier)
     assert [c.name for c in pipe.cues] == ["eye_contact", "smartphone"]
     assert pipe.eye_model is looking_model and isinstance(pipe.phone, PoseGeometryPhoneClassifier)
     frame = np.zeros((120, 160, 3), dtype=np.uint8)

@@ -32,7 +32,8 @@ te = _load_script()
 def test_label_files_load_and_are_self_consistent(name):
     labels = json.loads((LABELS / f"{name}.json").read_text())
     assert labels["set"] == name and labels["_doc"] and labels["tuned_on"] and labels["frames"]
-    assert ("not tuned on" in labels["tuned_on"]) == (name == "rendered")
+    assert ("not tuned on" in labels["tuned_on"]) == (name == "rendered_heldout")
+    assert bool(labels.get("held_out")) == (name == "rendered_heldout")
     people = 0
     for frame, entry in labels["frames"].items():
         w, h = entry.get("image_size", labels.get("image_size"))
@@ -143,3 +144,34 @@ def test_mp4_round_trip_reports_psnr_and_maps_frames_back(tmp_path):
     recs = [{"frame": "seq.mp4#2", "track_id": 0, "bbox": [1, 2, 3, 4]}, {"frame": "seq.mp4#0", "track_id": 1}]
     mapped = te.video_records(recs, folder)
     assert [r["frame"] for r in mapped] == ["f_002.png", "f_000.png"] and mapped[0]["bbox"] == [1, 2, 3, 4]
+
+
+def test_held_out_sets_are_reported_apart_from_all():
+    r = {"frames": 1, "people": 2, "found": 2, "detections": 2, "duplicates": 0, "false_boxes": 0,
+         "ignored_boxes": 0, "id_switches": 0, "persons": 2,
+         "phone": te.binary_scores([(True, 0.9), (False, 0.1)]),
+         "eye_contact": te.binary_scores([(True, 0.9), (False, 0.7)])}  # fmt: skip
+    both = te.total({"tuned": r, "held": {**r, "held_out": True}})
+    assert both["people"] == 2 and both["eye_contact"]["fp"] == 1  # the held-out set is not summed
+
+
+def test_held_out_recipe_differs_from_the_labelled_rendered_set():
+    """The held-out rendered set is a different recipe (seed, poses, distances) of the same
+    generator, and the labelled set's recipe is unchanged by the variant option."""
+    spec = importlib.util.spec_from_file_location("make_rendered", LABELS / "rendered" / "make_rendered.py")
+    assert spec is not None and spec.loader is not None
+    pytest.importorskip("pybullet")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    base, held = (json.loads((LABELS / f"{n}.json").read_text()) for n in ("rendered", "rendered_heldout"))
+    assert held["held_out"] is True and held["recipe"]["variant"] == "heldout"
+    assert held["recipe"]["seed"] != base["recipe"]["seed"] and "variant" not in base["recipe"]
+    default = mod.VARIANTS["default"]["roles"]
+    assert [(r[0], r[2], r[3], r[4], r[5]) for r in default] == [r[:5] for r in mod.ROLES]
+    assert {r[1] for r in mod.VARIANTS["heldout"]["roles"]} != {r[1] for r in default}  # other poses
+    ids = {p["id"] for f in held["frames"].values() for p in f["people"]}
+    assert ids == {r[0] for r in mod.HELDOUT_ROLES}
+    for f in held["frames"].values():
+        for p in f["people"]:
+            role = next(r for r in mod.HELDOUT_ROLES if r[0] == p["id"])
+            assert (p["phone"], p["eye_contact"]) == (role[3], role[4])  # truth from the scenario

@@ -1061,8 +1061,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     e.add_argument("--looking-weights", help="LOOKING eye-contact weights (default: ../shared, cache, download)")
     e.add_argument("--face", action="store_true",
-                   help="eye contact from the face too (face detection + mesh on people >= 100 px tall), fused "
-                   "with LOOKING by confidence; adds eye_contact_face and face_confidence to the tables")  # fmt: skip
+                   help="add the face's own eye-contact reading (eye_contact_face, face_confidence) to the tables "
+                   "(the face is always fused with LOOKING on people >= 100 px tall)")  # fmt: skip
     e.add_argument("--trust", choices=["seconds", "paper", "moving-average"], default="seconds",
                    help="seconds: SECONDS_TRUST, the same trust after the same seconds at any frame rate (default); "
                    "paper: PAPER_TRUST, a step per frame, rises only; moving-average: MOVING_AVERAGE_TRUST",

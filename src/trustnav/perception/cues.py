@@ -10,6 +10,7 @@ that is callable as ``cue(frame, people) -> confidences``; NaN marks a person it
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -49,20 +50,40 @@ class CueExtractor(Protocol):
 
 @dataclass(frozen=True)
 class EyeContactCue:
-    """C_eye for `eye_score`: the LOOKING model on each person's 17 keypoints and confidences."""
+    """C_eye for `eye_score`: the LOOKING model on each person's 17 keypoints and confidences.
+
+    ``posture``: with a :class:`~trustnav.perception.phone.PoseGeometryPhoneClassifier`, a person
+    holding something in both hands in front of the torso (a phone held to be read,
+    :meth:`~trustnav.perception.phone.PoseGeometryPhoneClassifier.hands_together`, h in [0, 1]) has
+    their eyes on it: C_eye is multiplied by 1 - ``posture_weight`` * h (the default cues)."""
 
     model: LookingModel
     name: str = EYE_CONTACT
+    posture: PoseGeometryPhoneClassifier | None = None
+    posture_weight: float = 0.8
 
     def __post_init__(self) -> None:
         if not hasattr(self.model, "predict"):
             raise ValueError(f"eye_model must be a LookingModel (with predict), got {type(self.model).__name__}")
+        if not 0.0 <= self.posture_weight <= 1.0:
+            raise ValueError(f"posture_weight must be in [0, 1], got {self.posture_weight!r}")
 
-    def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> NDArray[np.float64]:
+    def looking(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> NDArray[np.float64]:
+        """LOOKING's eye-contact probability per person (no posture veto)."""
         if not people:
             return np.zeros(0)
         inputs = np.stack([normalise_keypoints(p.keypoints, p.confidences, frame.shape[1]) for p in people])
         return self.model.predict(inputs)
+
+    def veto(self, people: Sequence[Person], values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``values`` times 1 - posture_weight * (both hands held together in front), per person."""
+        if self.posture is None or not len(people):
+            return np.asarray(values, dtype=float)
+        held = np.array([self.posture.hands_together(p.keypoints, p.confidences) for p in people])
+        return np.asarray(values, dtype=float) * (1.0 - self.posture_weight * held)
+
+    def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> NDArray[np.float64]:
+        return self.veto(people, self.looking(frame, people))
 
 
 @dataclass(frozen=True)
@@ -74,12 +95,13 @@ class FaceEyeContactCue(EyeContactCue):
     face: FaceEyeContact = field(default_factory=FaceEyeContact)
 
     def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> NDArray[np.float64]:
-        looking = super().__call__(frame, people)
+        looking = self.looking(frame, people)
         faces = self.face(frame, people)
         w = self.face.config.max_face_weight
-        return np.array(
-            [fuse_eye_contact(float(p), f.probability, f.confidence, w) for p, f in zip(looking, faces, strict=True)]
-        )
+        fused = [
+            fuse_eye_contact(float(p), f.probability, f.confidence, w) for p, f in zip(looking, faces, strict=True)
+        ]
+        return self.veto(people, np.array(fused, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -114,8 +136,11 @@ def with_face(
     found = False
     for c in cues:
         if isinstance(c, EyeContactCue) and not found:
-            out.append(FaceEyeContactCue(c.model, c.name, face))
+            kw = {"posture": c.posture, "posture_weight": c.posture_weight}
+            out.append(FaceEyeContactCue(c.model, c.name, face=face, **kw))
             found = True
+        elif isinstance(c, PhoneUseCue) and c.face is not None:
+            out.append(dataclasses.replace(c, face=face))  # one face analysis per frame, shared
         else:
             out.append(c)
     if not found:
@@ -132,13 +157,17 @@ class PhoneUseCue:
     ``uses_tracks``), C_sm is the posture over the last seconds of each track fused with this frame's
     geometry; without them, the classifier on this frame alone. ``crop``: a user's image classifier
     on the person crop (:class:`~trustnav.perception.phone.CropPhoneClassifier`), fused by
-    confidence (:func:`~trustnav.perception.phone.fuse_crop`).
+    confidence (:func:`~trustnav.perception.phone.fuse_crop`). ``face``: the face analysis (shared
+    with the eye-contact cue, so it runs once per frame) whose head pitch tells the pose classifier
+    whether a near person looks down at their hands
+    (:meth:`~trustnav.perception.phone.PoseGeometryPhoneClassifier.parts`).
     """
 
     classifier: PhoneClassifier = field(default_factory=PoseGeometryPhoneClassifier)
     name: str = SMARTPHONE
     temporal: TemporalPhoneModel | None = None
     crop: PhoneClassifier | None = None
+    face: FaceEyeContact | None = None
     uses_tracks: ClassVar[bool] = True  # run_cue passes track_ids and time
 
     def __post_init__(self) -> None:
@@ -156,13 +185,21 @@ class PhoneUseCue:
         track_ids: Sequence[int] | None = None,
         time: float | None = None,
     ) -> list[float]:
-        if self.temporal is None or track_ids is None:
-            out = [float(self.classifier(frame, p)) for p in people]
-        else:
+        heads: list[tuple[float, float] | None] = [None] * len(people)
+        if self.face is not None and people:
+            heads = [None if math.isnan(f.pitch) else (f.pitch, f.confidence) for f in self.face(frame, people)]
+        if self.temporal is not None and track_ids is not None:
             out = [
-                self.temporal.update(tid, time, p.keypoints, p.confidences).phone
-                for tid, p in zip(track_ids, people, strict=True)
+                self.temporal.update(tid, time, p.keypoints, p.confidences, face=h).phone
+                for tid, p, h in zip(track_ids, people, heads, strict=True)
             ]
+        elif self.face is not None and isinstance(self.classifier, PoseGeometryPhoneClassifier):
+            out = []
+            for p, h in zip(people, heads, strict=True):
+                texting, calling, pair = self.classifier.parts(p.keypoints, p.confidences, face=h)
+                out.append(float(max(texting.max(), calling.max(), pair)))
+        else:
+            out = [float(self.classifier(frame, p)) for p in people]
         if self.crop is not None:
             out = [
                 fuse_crop(c, float(self.crop(frame, p)), float(p.bbox[3] - p.bbox[1]))
@@ -171,14 +208,23 @@ class PhoneUseCue:
         return out
 
 
-def default_cues(eye_model: LookingModel, phone: PhoneClassifier | None = None) -> tuple[CueExtractor, ...]:
-    """The paper's image cues: eye contact (LOOKING) and smartphone use (by default the pose
-    geometry made temporal per track, :class:`~trustnav.perception.phone.TemporalPhoneModel`; a
-    user's ``phone`` classifier is used as given, frame by frame)."""
+def default_cues(
+    eye_model: LookingModel, phone: PhoneClassifier | None = None, face: FaceEyeContact | FaceConfig | None = None
+) -> tuple[CueExtractor, ...]:
+    """The paper's image cues: eye contact and smartphone use.
+
+    Eye contact: LOOKING fused by confidence with the face (:class:`FaceEyeContactCue`; the face is
+    looked at only on people at least ``FaceConfig.min_person_px`` tall, LOOKING alone below), with
+    the both-hands posture veto (:class:`EyeContactCue`). ``face``: an analyser to share or its
+    configuration. Smartphone use: by default the pose geometry made temporal per track
+    (:class:`~trustnav.perception.phone.TemporalPhoneModel`); a user's ``phone`` classifier is used as
+    given, frame by frame."""
+    geometry = phone if isinstance(phone, PoseGeometryPhoneClassifier) else PoseGeometryPhoneClassifier()
+    face = face if isinstance(face, FaceEyeContact) else FaceEyeContact(face)
+    eye = FaceEyeContactCue(eye_model, face=face, posture=geometry)
     if phone is None or isinstance(phone, PoseGeometryPhoneClassifier):
-        geometry = phone or PoseGeometryPhoneClassifier()
-        return (EyeContactCue(eye_model), PhoneUseCue(geometry, temporal=TemporalPhoneModel(geometry)))
-    return (EyeContactCue(eye_model), PhoneUseCue(phone))
+        return (eye, PhoneUseCue(geometry, temporal=TemporalPhoneModel(geometry)))
+    return (eye, PhoneUseCue(phone))
 
 
 def check_cues(cues: Sequence[CueExtractor]) -> tuple[CueExtractor, ...]:

@@ -112,8 +112,8 @@ class FaceConfig:
     max_pitch_deg: float = 20.0
     softness: float = 0.2
     pitch_offset_deg: float = 0.0
-    face_px_min: float = 10.0
-    face_px_full: float = 30.0
+    face_px_min: float = 8.0
+    face_px_full: float = 20.0
     blur_ref: float = 20.0
     min_eye_px: float = 10.0
     iris_gain_deg: float = 40.0

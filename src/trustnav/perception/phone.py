@@ -68,6 +68,14 @@ class PoseGeometryPhoneClassifier:
     head_weight: float = 0.4  # share of the texting cue that needs the head pitched down
     wrist_confidence: tuple[float, float] = (0.3, 0.7)  # wrist confidence: cue ignored -> fully used
     face_distance: float = 0.35  # wrist-to-ear distance, in torso lengths, for a call
+    # seen from behind: the face's best keypoint confidence (nose, eyes; occlusion-aware: ~1 facing,
+    # the near eye ~0.7 in profile, all ~0 from the back) from no cue -> full cue; hands in front of
+    # the torso are then hidden by the body, their keypoints guesses
+    facing_confidence: tuple[float, float] | None = (0.2, 0.5)
+    pair_distance: tuple[float, float] = (0.35, 0.5)  # wrists this close (torso lengths): held together
+    # head pitch from the face mesh (degrees below the camera ray: no cue -> full cue), used by the
+    # texting cue in proportion to the face's confidence where the face was judged
+    face_pitch_down: tuple[float, float] = (5.0, 20.0)
 
     def __post_init__(self) -> None:
         lo, hi = self.raise_band
@@ -79,6 +87,10 @@ class PoseGeometryPhoneClassifier:
             raise ValueError("raise_softness, front_of_torso and face_distance must be positive")
         if not self.head_down[0] < self.head_down[1]:
             raise ValueError(f"head_down must be (no cue, full cue) increasing, got {self.head_down!r}")
+        for name in ("facing_confidence", "pair_distance", "face_pitch_down"):
+            pair = getattr(self, name)
+            if pair is not None and not 0.0 <= pair[0] < pair[1]:
+                raise ValueError(f"{name} must be (low, high) with 0 <= low < high, got {pair!r}")
 
     def __call__(self, frame: NDArray[np.uint8] | None, person: Person) -> float:
         return self.confidence(person.keypoints, person.confidences)
@@ -97,41 +109,109 @@ class PoseGeometryPhoneClassifier:
     def per_wrist(
         self, keypoints: NDArray[np.float64], confidences: NDArray[np.float64] | None = None
     ) -> NDArray[np.float64]:
-        """The cue of each wrist (left, right): max(texting, calling) for that hand, in [0, 1]."""
+        """The cue of each wrist (left, right): max(texting, calling, both hands) for that hand, in [0, 1]."""
+        texting, calling, pair = self.parts(keypoints, confidences)
+        return np.clip(np.maximum(np.maximum(texting, calling), pair), 0.0, 1.0)
+
+    def parts(
+        self,
+        keypoints: NDArray[np.float64],
+        confidences: NDArray[np.float64] | None = None,
+        facing: float | None = None,
+        face: tuple[float, float] | None = None,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """(texting per wrist, calling per wrist, both hands held together) from one frame's pose.
+
+        texting: the wrist raised ``raise_band`` of the way from hip to shoulder, in front of the
+        torso, weighted by the head pitched down (``head_weight``), times its confidence ramp and the
+        facing factor (off for a person seen from behind, ``facing_confidence``: the hands are then
+        hidden by the body and the head, their keypoints guesses); calling: the wrist at an ear,
+        times the facing factor; both hands: the two wrists within ``pair_distance`` torso lengths
+        of each other, both in the raise band in front of the torso (a phone held in both hands):
+        seen = 1 - (1 - s_l)(1 - s_r) (one well-seen wrist vouches for the pair: hands together in
+        front are half hidden), the head weight as for texting, times the facing factor.
+
+        ``facing``: that factor as given (e.g. judged over a track's recent frames) instead of from
+        this frame's face keypoint confidences (:meth:`facing`). ``face``: (pitch in degrees, > 0
+        tilted up, and confidence c in [0, 1]) of the head from the face mesh
+        (:class:`~trustnav.perception.face.FaceResult`); where given, texting needs the eyes on the
+        hands in proportion to c: the head weight becomes hw + (1 - hw) c and the head-down reading
+        (1 - c) down_keypoints + c ramp(-pitch, ``face_pitch_down``), so a near person whose face
+        looks ahead is not texting with a hand at the chest. Not used by default (a phone held at
+        the mouth while looking at the camera is phone use too; docs/perception.md).
+        """
         kp = np.asarray(keypoints, dtype=float)
-        out = np.zeros(2)
+        texting, calling = np.zeros(2), np.zeros(2)
         ok_body = np.isfinite(kp).all(axis=1)
         if kp.shape != (17, 2) or not ok_body[[5, 6, 11, 12]].all():
-            return out
+            return texting, calling, 0.0
         shoulders = kp[[5, 6]].mean(axis=0)
         hips = kp[[11, 12]].mean(axis=0)
         torso = float(np.hypot(*(hips - shoulders)))
         if torso < 1e-6:
-            return out
+            return texting, calling, 0.0
         down = 0.0
         if ok_body[[0, 3, 4]].all():
             drop = (kp[0, 1] - kp[[3, 4], 1].mean()) / torso
             down = _ramp(drop, *self.head_down)
+        pair_head = 1.0 - self.head_weight + self.head_weight * down  # keypoints' head reading (not the face's)
+        head_weight = self.head_weight
+        if face is not None and math.isfinite(face[0]) and face[1] > 0.0:
+            c = min(float(face[1]), 1.0)
+            head_weight = self.head_weight + (1.0 - self.head_weight) * c
+            down = (1.0 - c) * down + c * _ramp(-float(face[0]), *self.face_pitch_down)
         lo, hi = self.raise_band
         conf = np.ones(17) if confidences is None else np.asarray(confidences, dtype=float)
+        if facing is None:
+            facing = self.facing(conf if confidences is not None else None)
+        seen_w, posture = np.zeros(2), np.zeros(2)  # confidence ramp; band x front (no head, no facing)
         for side, (wrist, shoulder, hip) in enumerate(((9, 5, 11), (10, 6, 12))):
             seen = _ramp(float(conf[wrist]), *self.wrist_confidence)
             if not ok_body[wrist] or seen <= 0.0:
                 continue
-            texting = calling = 0.0
+            seen_w[side] = seen
             span = kp[hip, 1] - kp[shoulder, 1]
             if span > 1e-6:
                 r = (kp[hip, 1] - kp[wrist, 1]) / span
                 band = min(_ramp(r, lo - self.raise_softness, lo), 1.0 - _ramp(r, hi, hi + self.raise_softness))
                 centre = abs(kp[wrist, 0] - 0.5 * (shoulders[0] + hips[0])) / torso
                 front = 1.0 - _ramp(centre, self.front_of_torso, 1.6 * self.front_of_torso)
-                texting = seen * band * front * (1.0 - self.head_weight + self.head_weight * down)
+                posture[side] = band * front
+                texting[side] = seen * posture[side] * (1.0 - head_weight + head_weight * down) * facing
                 for ear in (3, 4):
                     if ok_body[ear]:
                         d = math.hypot(*(kp[wrist] - kp[ear])) / torso
-                        calling = max(calling, seen * (1.0 - _ramp(d, self.face_distance, 1.5 * self.face_distance)))
-            out[side] = max(texting, calling)
-        return np.clip(out, 0.0, 1.0)
+                        near = 1.0 - _ramp(d, self.face_distance, 1.5 * self.face_distance)
+                        calling[side] = max(calling[side], seen * near * facing)
+        pair = 0.0
+        if ok_body[[9, 10]].all() and seen_w.all():
+            close = 1.0 - _ramp(math.hypot(*(kp[9] - kp[10])) / torso, *self.pair_distance)
+            seen = 1.0 - (1.0 - seen_w[0]) * (1.0 - seen_w[1])
+            pair = float(close * seen * min(posture) * pair_head * facing)
+        return np.clip(texting, 0.0, 1.0), np.clip(calling, 0.0, 1.0), float(np.clip(pair, 0.0, 1.0))
+
+    def facing(self, confidences: NDArray[np.float64] | None) -> float:
+        """1 for a person whose face is toward the camera or in profile, falling to 0 for one seen
+        from behind (the best confidence of nose and eyes, :meth:`face_seen`, below
+        ``facing_confidence``); 1 without confidences."""
+        seen = self.face_seen(confidences)
+        if self.facing_confidence is None or not math.isfinite(seen):
+            return 1.0
+        return _ramp(seen, *self.facing_confidence)
+
+    @staticmethod
+    def face_seen(confidences: NDArray[np.float64] | None) -> float:
+        """The largest confidence of nose and eyes (COCO 0-2): one face keypoint the camera sees
+        (a profile's near eye; one keypoint dropped out does not hide a face); NaN without them."""
+        if confidences is None:
+            return math.nan
+        c = np.asarray(confidences, dtype=float)[:3]
+        c = c[np.isfinite(c)]
+        return float(c.max()) if c.size else math.nan
+
+    def hands_together(self, keypoints: NDArray[np.float64], confidences: NDArray[np.float64] | None = None) -> float:
+        """The "phone held in both hands in front of the torso" posture in [0, 1] (:meth:`parts`)."""
+        return self.parts(keypoints, confidences)[2]
 
 
 # -- phone use over time --------------------------------------------------------------------------
@@ -140,7 +220,9 @@ class PoseGeometryPhoneClassifier:
 @dataclass
 class _Track:
     times: list[float] = field(default_factory=list)
-    cues: list[NDArray[np.float64]] = field(default_factory=list)  # per-wrist geometry (2,)
+    hands: list[NDArray[np.float64]] = field(default_factory=list)  # per-wrist texting / both hands (2,)
+    calls: list[NDArray[np.float64]] = field(default_factory=list)  # per-wrist calling (2,)
+    noses: list[float] = field(default_factory=list)  # best face keypoint confidence (facing or not)
     seen: list[NDArray[np.float64]] = field(default_factory=list)  # per-wrist confidence ramp (2,)
     wrists: list[NDArray[np.float64]] = field(default_factory=list)  # (2, 2) torso-relative, NaN if unseen
     splits: list[float] = field(default_factory=list)  # wrists on opposite sides of the torso (a stride)
@@ -234,6 +316,11 @@ class TemporalPhoneModel:
     def track_ids(self) -> list[int]:
         return sorted(self._tracks)
 
+    @staticmethod
+    def _parts(tr: _Track) -> tuple[list, ...]:
+        """The per-frame lists of a track (dropped together)."""
+        return (tr.times, tr.hands, tr.calls, tr.noses, tr.seen, tr.wrists, tr.splits, tr.torso_px)
+
     def _wrists(self, kp: NDArray[np.float64], conf: NDArray[np.float64]) -> NDArray[np.float64]:
         out = np.full((2, 2), np.nan)
         if not np.isfinite(kp[[5, 6, 11, 12]]).all():
@@ -265,39 +352,54 @@ class TemporalPhoneModel:
         time: float | None,
         keypoints: NDArray[np.float64],
         confidences: NDArray[np.float64] | None = None,
+        face: tuple[float, float] | None = None,
     ) -> TemporalPhoneResult:
-        """Add this frame's pose of ``track_id`` at ``time`` (s) and return the fused reading."""
+        """Add this frame's pose of ``track_id`` at ``time`` (s) and return the fused reading;
+        ``face``: the head's (pitch, confidence) from the face mesh where judged (:meth:`parts`)."""
         kp = np.asarray(keypoints, dtype=float)
         if kp.shape != (17, 2):
             raise ValueError(f"keypoints must have shape (17, 2), got {kp.shape}")
         conf = np.ones(17) if confidences is None else np.asarray(confidences, dtype=float)
-        cue = self.geometry.per_wrist(kp, conf)
-        g = float(cue.max())
         if track_id is None or track_id < 0 or time is None or not math.isfinite(time):
+            texting, calling, pair = self.geometry.parts(kp, None if confidences is None else conf, face=face)
+            g = float(max(texting.max(), calling.max(), pair))
             return TemporalPhoneResult(g, g, g, 0.0, 0.0)
+        texting, calling, pair = self.geometry.parts(kp, conf, facing=1.0, face=face)
+        hands = np.maximum(texting, pair)
         t = float(time)
         # tracks unseen for long are dropped (bounded memory; a returning ID starts afresh)
         for tid in [k for k, tr in self._tracks.items() if t - tr.times[-1] > self.reset_after_s or t < tr.times[-1]]:
             del self._tracks[tid]
         tr = self._tracks.setdefault(int(track_id), _Track())
         if tr.times and t == tr.times[-1]:  # the same frame twice: replace
-            tr.times.pop(), tr.cues.pop(), tr.seen.pop(), tr.wrists.pop(), tr.splits.pop()
+            for part in self._parts(tr):
+                part.pop()
         wrists = self._wrists(kp, conf)
         tr.times.append(t)
-        tr.cues.append(cue)
+        tr.hands.append(hands)
+        tr.calls.append(calling)
+        tr.noses.append(self.geometry.face_seen(conf if confidences is not None else None))
         lo, hi = self.geometry.wrist_confidence
         tr.seen.append(np.array([_ramp(float(conf[j]), lo, hi) if np.isfinite(kp[j]).all() else 0.0 for j in (9, 10)]))
         tr.wrists.append(wrists)
         tr.torso_px.append(float(np.hypot(*(kp[[11, 12]].mean(axis=0) - kp[[5, 6]].mean(axis=0)))))
         tr.splits.append(self._split(kp, wrists))
         while tr.times and tr.times[0] < t - self.window_s - 1e-9:
-            tr.times.pop(0), tr.cues.pop(0), tr.seen.pop(0), tr.wrists.pop(0), tr.splits.pop(0)
+            for part in self._parts(tr):
+                part.pop(0)
         history = t - tr.times[0]
+        # seen from behind over the window (median face confidence): hands in front are guesses
+        noses = np.array(tr.noses)
+        facing = 1.0
+        if np.isfinite(noses).any():
+            facing = self.geometry.facing(np.full(3, float(np.nanmedian(noses))))
+        cues = facing * np.maximum(np.stack(tr.hands), np.stack(tr.calls))  # (n, 2)
+        g = float(cues[-1].max())
         if len(tr.times) < 2:
             return TemporalPhoneResult(g, g, g, 0.0, history)
         # G_w: mean cue over the frames the wrist was seen (an unseen wrist is no evidence either way)
         seen = np.sum(tr.seen, axis=0)
-        held = np.sum(tr.cues, axis=0) / np.maximum(seen, max(1.0, 0.5 * len(tr.times)))
+        held = np.sum(cues, axis=0) / np.maximum(seen, max(1.0, 0.5 * len(tr.times)))
         pos = np.stack(tr.wrists)  # (n, 2 wrists, 2)
         motion = np.zeros(2)
         for side in (0, 1):

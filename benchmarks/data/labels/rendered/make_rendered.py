@@ -8,7 +8,13 @@ body points (``trustnav.sim.driving.sensing.projected_box``). The frames (~6 MB)
 ``benchmarks/trust_eval.py`` regenerates them into a cache folder and checks the boxes against
 ``../rendered.json``, the labels this script wrote.
 
+The held-out set ``../rendered_heldout.json`` (variant "heldout", seed 11) is made by the same
+generator with other poses, turns, looks and distances (``HELDOUT_ROLES``): standing attentive
+people turned up to 30 deg, people walking while texting turned 15-75 deg, people walking away;
+6-15 m. It was made, and its figures taken, before issue 19's cue changes; nothing was tuned on it.
+
     python benchmarks/data/labels/rendered/make_rendered.py OUT_DIR   # frames + OUT_DIR/labels.json
+    python benchmarks/data/labels/rendered/make_rendered.py OUT_DIR 11 heldout   # the held-out set
 """
 
 from __future__ import annotations
@@ -32,11 +38,25 @@ ROLES = (  # pose, appearance, phone, eye contact, body yaw offset from facing t
     ("distracted", body.DISTRACTED_LOOK, True, False, 0.0),
     ("walking", body.WALKER_LOOK, False, False, 90.0),
 )
+# The held-out variant (``rendered_heldout.json``, recipe "variant": "heldout"): other poses, body
+# turns, looks and distances, made so that nothing was tuned on it. id, pose, appearance, phone,
+# eye contact, body yaw offset (deg; its sign drawn at random), yaw jitter (+- deg).
+HELDOUT_ROLES = (
+    ("attentive", "attentive", body.WALKER_LOOK, False, True, 0.0, 30.0),
+    ("texting", "texting_walk", body.ATTENTIVE_LOOK, True, False, 45.0, 30.0),
+    ("walking", "walking", body.DISTRACTED_LOOK, False, False, 135.0, 30.0),
+)
+VARIANTS = {
+    "default": {"roles": tuple((r[0], r[0], r[1], r[2], r[3], r[4], 15.0) for r in ROLES), "dist": (7.0, 13.0)},
+    "heldout": {"roles": HELDOUT_ROLES, "dist": (6.0, 15.0)},
+}
 
 
-def generate(out: Path, n: int = 20, seed: int = 0) -> dict:
-    """Renders the frames into ``out``; returns their labels (file name -> people)."""
+def generate(out: Path, n: int = 20, seed: int = 0, variant: str = "default") -> dict:
+    """Renders the frames into ``out``; returns their labels (file name -> people). ``variant``:
+    "default" (the labelled set ``rendered.json``) or "heldout" (``rendered_heldout.json``)."""
     out.mkdir(parents=True, exist_ok=True)
+    roles, (d_lo, d_hi) = VARIANTS[variant]["roles"], VARIANTS[variant]["dist"]
     rng = np.random.default_rng(seed)
     scenario = load_drive_scenario("case-1")
     street = street_of(scenario)
@@ -50,18 +70,18 @@ def generate(out: Path, n: int = 20, seed: int = 0) -> dict:
             fwd, right = np.array([0.0, -1.0]), camera.right[:2]
             laterals = rng.permutation([-2.6, 0.0, 2.6]) + rng.uniform(-0.3, 0.3, 3)
             bodies, people = [], []
-            for j, (pose, look, phone, eye, yaw_off) in enumerate(ROLES):
-                dist = rng.uniform(7.0, 13.0)
+            for j, (pid, pose, look, phone, eye, yaw_off, jitter) in enumerate(roles):
+                dist = rng.uniform(d_lo, d_hi)
                 xy = camera.position[:2] + dist * fwd + laterals[j] * right
                 ground = float(street.ground_height(xy))
                 # body facing the camera: chest towards +y (the camera looks along -y)
-                face = 0.5 * math.pi + math.radians(yaw_off * rng.choice([-1, 1]) + rng.uniform(-15, 15))
+                face = 0.5 * math.pi + math.radians(yaw_off * rng.choice([-1, 1]) + rng.uniform(-jitter, jitter))
                 target = camera.position if pose == "attentive" else None
                 sk = body.pedestrian_skeleton(pose, (xy[0], xy[1], ground), face, float(rng.uniform(0, 10)), look,
                                               look_at=target, phase=float(rng.uniform(0, 1)))  # fmt: skip
                 box = projected_box(camera, sk)
                 bodies.append((sk, look))
-                people.append({"id": pose, "bbox": [round(float(v), 1) for v in box], "phone": phone,
+                people.append({"id": pid, "bbox": [round(float(v), 1) for v in box], "phone": phone,
                                "eye_contact": eye, "distance_m": round(float(dist), 2)})  # fmt: skip
             rgb = renderer.render(camera, bodies)
             name = f"frame_{k:02d}.png"
@@ -76,4 +96,6 @@ if __name__ == "__main__":
     import sys
 
     dest = Path(sys.argv[1] if len(sys.argv) > 1 else "rendered_frames")
-    (dest / "labels.json").write_text(json.dumps(generate(dest), indent=1))
+    seed = int(sys.argv[2]) if len(sys.argv) > 2 else 0
+    variant = sys.argv[3] if len(sys.argv) > 3 else "default"
+    (dest / "labels.json").write_text(json.dumps(generate(dest, seed=seed, variant=variant), indent=1))
