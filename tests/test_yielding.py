@@ -37,6 +37,9 @@ def test_a_pedestrian_the_car_can_pass_at_r_on_the_road_is_not_yielded_to():
     assert _decide((30.0, 4.0), (0.0, 0.0)) is None  # on the kerb: pass at y <= 1.5
     assert _decide((30.0, -1.0), (0.0, 0.0)) is None  # pass on their left at y = 1.5 <= 2.0
     assert _decide((-10.0, 0.0), (0.0, 0.0)) is None  # behind the car
+    # just passed, with a large uncertainty margin (a coasted track out of the camera's view):
+    # stopping beside them helps no one
+    assert _decide((-1.0, 2.5), (0.0, 0.0), radii=np.array([5.0])) is None
 
 
 def test_a_crosser_is_passed_only_behind():

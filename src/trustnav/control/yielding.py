@@ -16,8 +16,9 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   stay on the road (``d + r <= room_left - tolerance`` on the left, ``d - r >= -room_right +
   tolerance`` on the right). A pedestrian crossing the road (lateral speed above ``crossing_speed``)
   is passed behind, never on the side they walk toward.
-- **Blocking**: no side to pass on, while the pedestrian is within ``r`` of the corridor, at or
-  ahead of the car.
+- **Blocking**: no side to pass on, while the pedestrian is within ``r`` of the corridor and ahead
+  of the car's centre (beside or behind it, braking would stop the car next to them: the MPC's
+  barrier keeps R there).
 - **Yield** to a blocking pedestrian unless the car, at its present speed, has passed them
   ``clear_time`` s before their blocking begins. The stop is ``r + gap`` short of the nearest place
   the pedestrian blocks; the speed is capped to brake there at ``deceleration``.
@@ -110,7 +111,7 @@ class Yielder:
         room_left = (d + r <= left - c.tolerance) & ~walks_left  # pass on their left: behind a walker going right
         room_right = (d - r >= -right + c.tolerance) & ~walks_right
         near = (d - r < left) & (d + r > -right)  # within r of the corridor
-        ahead = s + r > s_car
+        ahead = s > s_car  # beside or behind the car is the MPC's: stopping there helps no one
         blocking = near & ahead & ~room_left & ~room_right  # (N, T)
         best: tuple[float, int] | None = None
         v = max(speed, 0.1)
