@@ -171,6 +171,22 @@ def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropp
         tr2.update(0.5, [])
 
 
+def test_a_person_too_close_in_front_to_be_seen_whole_is_not_dropped_as_missed():
+    """A crosser 2.5 m in front of the camera is cut off at the image's edge (feet below it), so not
+    being detected there is no evidence she has gone: her track lives as out of view (a car that
+    forgot her drove into her in a random lane crossing), while a person far ahead, in full view and
+    not detected for keep_seconds, is dropped."""
+    sc = load_drive_scenario("case-1")
+    cam = sc.camera.pose([33.5, 105.0], -math.pi / 2)  # the camera about 103.5, looking down -y
+    near, far = [33.5, 101.0], [33.5, 80.0]
+    tr = WorldTracker()
+    for k in range(3):
+        tr.update(0.5 * k, [_estimate(near, 0.1), _estimate(far, 0.1)], camera=cam)
+    tr.update(5.0, [], camera=cam)  # neither seen for 4 s > keep_seconds
+    (kept,) = tr.predict(5.0)
+    assert np.hypot(*(kept.position - near)) < 1.0
+
+
 # ------------------------------------------------------------------------------------------- margin
 
 

@@ -20,9 +20,10 @@ identity survives frames that are a second apart and people who leave the view f
   as far as the gate allows (its covariance scaled up): one bad placement does not split a person;
 * **birth** of a tentative track from an estimate no track takes, **confirmation** after
   ``confirm_hits`` hits, **deletion** of a tentative track at its first miss; a confirmed track
-  is deleted when it should have been seen and was not for ``keep_seconds`` (its predicted
-  position inside the camera's view), when it is out of view and unseen for ``out_of_view_seconds``
-  (people who left the view beside the car stay that long, predicted with growing uncertainty),
+  is deleted when it should have been seen and was not for ``keep_seconds`` (the whole body of a
+  person at its predicted position inside the camera's view), when it is out of view and unseen
+  for ``out_of_view_seconds`` (people who left the view beside the car, or who stand so close in
+  front that they are cut off, stay that long, predicted with growing uncertainty),
   when it is more than ``behind`` metres behind the camera (passed), or when its position
   uncertainty exceeds ``max_sigma``.
 
@@ -288,11 +289,15 @@ class WorldTracker:
                 continue
             if unseen > 0.0 and camera is not None:
                 xy = t.mean[:2] if to_world is None else np.asarray(to_world).T @ t.mean[:2]
-                point = np.array([[xy[0], xy[1], camera.position[2] - 0.8]])
-                depth = float(camera.to_camera(point)[0, 2])
+                # head, middle and feet of a person standing there (camera at about head height)
+                z = camera.position[2]
+                body = np.array([[xy[0], xy[1], z], [xy[0], xy[1], z - 0.8], [xy[0], xy[1], z - 1.6]])
+                depth = float(camera.to_camera(body[1:2])[0, 2])
                 if depth < -cfg.behind:
                     continue
-                visible = bool(camera.in_view(point)[0]) and depth > 1.0
+                # should have been seen: the whole body in the image (near the car, or at the image's
+                # edge, a person is cut off and often missed: they are kept as out of view)
+                visible = bool(camera.in_view(body).all()) and depth > 1.0
                 if unseen > (cfg.keep_seconds if visible else cfg.out_of_view_seconds):
                     continue
             elif unseen > cfg.keep_seconds:
