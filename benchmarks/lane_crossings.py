@@ -64,7 +64,7 @@ def brake_room(sc, r) -> float:  # type: ignore[no-untyped-def]
     (negative: no braking keeps R, a step-out too close in front of the car)."""
     b = sc.pedestrians[0].behaviour
     k = min(int(np.searchsorted(r.times, b.start_time)), len(r.times) - 1)
-    x, y, _, v = r.ego[k]
+    _, y, _, v = r.ego[k]
     ahead = y - sc.pedestrians[0].position[1]  # the car drives toward -y
     react = sc.vehicle.latency + 1.0 / sc.control.rate
     stop = v * react + v * v / (2.0 * abs(sc.vehicle.accel_min))
@@ -104,8 +104,9 @@ def main() -> None:
     print(f"  off the road: {len(off)}  within R: {len(inside)} ({len(avoidable)} of them could have stopped R "
           f"short braking at the limit when the crosser stepped out)  goal not reached: {len(stuck)}")  # fmt: skip
     print(f"  closest approach {min(r['closest_m'] for r in rows):.2f} m (R = {base.control.safety_radius} m)")
+    yielded = [r["yield_s"] for r in rows]
     print(f"  time to goal median {np.median(ttg):.1f} s, p90 {np.percentile(ttg, 90):.1f} s; yielded in "
-          f"{sum(r['yield_s'] > 0 for r in rows)} runs, median {np.median([r['yield_s'] for r in rows]):.1f} s")  # fmt: skip
+          f"{sum(y > 0 for y in yielded)} runs, median {np.median(yielded):.1f} s")  # fmt: skip
     for r in off + inside + stuck:
         print("  ", json.dumps(r))
     if args.json:
