@@ -29,6 +29,23 @@ def test_road_edge_barrier_values_and_errors():
         RoadEdgeBarrier((0, 0), (0, 0), left=3.0, right=3.0)
 
 
+def test_the_front_rows_keep_the_point_ahead_on_the_road_and_their_gradient_is_exact():
+    road = RoadEdgeBarrier((0.0, 0.0), (100.0, 0.0), left=3.0, right=3.0, margin=1.0, front=2.0)
+    assert road.size() == 4 and road.decay().shape == (4,)
+    # at y = 1.5 heading 30 deg to the left the centre has 0.5 m of room, the point 2 m ahead none
+    x = np.array([[10.0, 1.5, np.radians(30.0), 5.0]])
+    h, grad = road.values(x, np.zeros(1, dtype=np.int64), 0.1)
+    np.testing.assert_allclose(h[0], [0.5, 3.5, -0.5, 4.5], atol=1e-12)
+    eps = 1e-6
+    for i in range(3):  # x, y, yaw
+        dx = np.zeros_like(x)
+        dx[0, i] = eps
+        h2, _ = road.values(x + dx, np.zeros(1, dtype=np.int64), 0.1)
+        np.testing.assert_allclose((h2[0] - h[0]) / eps, grad[0, :, i], atol=1e-5)
+    with pytest.raises(ValueError, match="road front"):
+        RoadEdgeBarrier((0, 0), (1, 0), left=3.0, right=3.0, front=-1.0)
+
+
 def test_a_relaxed_step_with_a_user_barrier_is_solved_and_reported():
     """A pedestrian on the lane ahead and road edges too tight to pass: the QP needs its slacks,
     which cover the road rows as well as the pedestrian's (this crashed before: slacks were sized

@@ -219,7 +219,13 @@ class RoadEdgeBarrier:
     position from the line ``start -> end`` (left positive) and w_left, w_right the room on each
     side, less ``margin`` (half the car's width: the body stays on the road). Linear in the
     position, so `cbf_discrete` keeps the car inside when it can; a plan that cannot is relaxed and
-    reported like a pedestrian row. ``gamma``: the rate at which the car may approach an edge."""
+    reported like a pedestrian row. ``gamma``: the rate at which the car may approach an edge.
+
+    ``front`` (m, > 0 for a model whose third state is its heading): two more rows keep the point
+    ``front`` ahead of the position along the heading on the road too. A car whose centre alone is
+    kept could reach the edge turned toward it and stop there, its nose over the kerb, unable to
+    drive on without leaving the road (a bicycle does not reverse); with its front kept as well, it
+    straightens before it reaches the edge."""
 
     def __init__(
         self,
@@ -229,6 +235,7 @@ class RoadEdgeBarrier:
         right: float,
         margin: float = 0.0,
         gamma: float = 0.5,
+        front: float = 0.0,
     ) -> None:
         a, b = np.asarray(start, dtype=float).reshape(2), np.asarray(end, dtype=float).reshape(2)
         axis = b - a
@@ -244,12 +251,15 @@ class RoadEdgeBarrier:
         self.normal = np.array([-axis[1], axis[0]]) / length  # left of the driving direction
         self.room = (room_left, room_right)
         self.gamma = float(gamma)
+        if not (np.isfinite(front) and front >= 0):
+            raise ValueError(f"road front must be a finite distance >= 0 m, got {front!r}")
+        self.front = float(front)
 
     def size(self) -> int:
-        return 2
+        return 4 if self.front > 0 else 2
 
     def decay(self) -> NDArray[np.float64]:
-        return np.full(2, 1.0 - self.gamma)
+        return np.full(self.size(), 1.0 - self.gamma)
 
     def offset(self, positions: ArrayLike) -> NDArray[np.float64]:
         """Signed lateral offset of positions (..., 2) from the road's line (left positive)."""
@@ -259,8 +269,16 @@ class RoadEdgeBarrier:
         self, states: NDArray[np.float64], steps: NDArray[np.int64], dt: float
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         d = self.offset(states[:, :2])
-        h = np.stack([self.room[0] - d, d + self.room[1]], axis=1)
-        grad = np.zeros((states.shape[0], 2, states.shape[1]))
+        rows = [self.room[0] - d, d + self.room[1]]
+        grad = np.zeros((states.shape[0], self.size(), states.shape[1]))
         grad[:, 0, :2] = -self.normal
         grad[:, 1, :2] = self.normal
-        return h, grad
+        if self.front > 0:  # the point ``front`` ahead along the heading (state 2)
+            yaw = states[:, 2]
+            ahead = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+            df = d + self.front * (ahead @ self.normal)
+            turn = self.front * (np.stack([-np.sin(yaw), np.cos(yaw)], axis=1) @ self.normal)  # d(df)/d(yaw)
+            rows += [self.room[0] - df, df + self.room[1]]
+            grad[:, 2, :2], grad[:, 2, 2] = -self.normal, -turn
+            grad[:, 3, :2], grad[:, 3, 2] = self.normal, turn
+        return np.stack(rows, axis=1), grad

@@ -159,12 +159,14 @@ class ControlSpec:
     road_edges: bool = True
     road_margin: float = 0.9
     road_gamma: float = 0.5
+    road_front: float = 2.0
 
     def __post_init__(self) -> None:
         _positive("control rate", self.rate)
         if not isinstance(self.road_edges, bool):
             raise ValueError(f"[control] road_edges must be true or false, got {self.road_edges!r}")
         _positive("road_margin", self.road_margin, allow_zero=True)
+        _positive("road_front", self.road_front, allow_zero=True)
         if not 0.0 < self.road_gamma <= 1.0:
             raise ValueError(f"[control] road_gamma must be in (0, 1], got {self.road_gamma!r}")
         self.config()  # validates dt, horizon, R, timing, latency
@@ -192,7 +194,7 @@ class ControlSpec:
         if not self.road_edges:
             return ()
         half = road.width / 2
-        return (RoadEdgeBarrier(road.start, road.end, half, half, self.road_margin, self.road_gamma),)
+        return (RoadEdgeBarrier(road.start, road.end, half, half, self.road_margin, self.road_gamma, self.road_front),)
 
 
 @dataclass(frozen=True)
