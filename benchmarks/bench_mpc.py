@@ -7,7 +7,9 @@
   input difference between the plans is reported (CasADi SQP and IPOPT run with tolerance
   1e-9; sqpmethod with ``convexify_strategy="eigen-clip"``). Without casadi these columns say "n/a";
 * **compiled floor**: per step, the controller's SQP iterations times (one fused QP build + one
-  DAQP update and solve) at the returned plan, measured warm right after the step;
+  DAQP update and solve) at the returned plan, measured warm right after the step; beside it the
+  whole controller step in the same closed loop run alone (warm, as the floor), and its ratio to
+  the floor;
 * **SLSQP, authors' style** (:class:`AuthorsSlsqpSolver`): as the paper's code writes the MPC:
   one closure per pedestrian and horizon step, scipy's default ftol and maxiter, the previous
   solution as warm start (not shifted);
@@ -346,6 +348,8 @@ def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False, c
     p_def, rec, f_def, u_def, cas_fail = _compared_episode(model, x0, peds, trusts, cfg, cost, steps, cas)
     t_def = np.array(rec["t"])
     med_d = _ms(t_def)
+    # the same closed loop run alone (warm caches, as the floor is measured): the step's own overhead
+    _, t_alone, _, _ = _episode(model, x0, peds, trusts, cfg, cost, SqpSolver(), steps)
     row = {
         "model": model_name,
         "case": str(seed),
@@ -355,6 +359,9 @@ def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False, c
         "default_p95_ms": _ms(t_def, 95),
         "default_max_ms": float(t_def.max() * 1e3),
         "floor_median_ms": _ms(rec["floor"]),
+        "alone_median_ms": _ms(t_alone),
+        "alone_p95_ms": _ms(t_alone, 95),
+        "alone_over_floor": _ms(t_alone) / _ms(rec["floor"]),
         "iterations_median": float(np.median(rec["it"])),
         "iterations_max": int(np.max(rec["it"])),
         "failures": int(f_def),
@@ -417,10 +424,11 @@ def main() -> None:
     else:
         print(f"CasADi {ca.__version__}: sqpmethod + qpOASES and IPOPT on the same states, interleaved.\n")
     rows = []
-    print("| model | case | N_p x N_h | default median / p95 / max (ms) | compiled floor median (ms) | SQP its "
+    print("| model | case | N_p x N_h | default median / p95 / max (ms) | compiled floor median (ms) "
+          "| default run alone median / p95 (ms), x floor | SQP its "
           "median / max | CasADi SQP median / p95 (ms) | IPOPT median / p95 (ms) | default / CasADi SQP: median, p95 | "
           "max input diff (SQP / IPOPT) | failures (default / CasADi SQP / IPOPT) |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for model, n_p, n_h, seed, bsteps in cases:
         r = run_case(model, n_p, n_h, seed, args.steps, 0 if args.no_slsqp else bsteps, args.per_row_baseline,
                      use_casadi)  # fmt: skip
@@ -432,7 +440,8 @@ def main() -> None:
             ratio = f"{r['default_median_ms'] / sqp:.2f}, {r['default_p95_ms'] / r['casadi_sqp_p95_ms']:.2f}"
         print(f"| {model} | {case} | {r['n_p']} x {n_h} "
               f"| {r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f} / {r['default_max_ms']:.3f} "
-              f"| {r['floor_median_ms']:.3f} | {r['iterations_median']:.0f} / {r['iterations_max']} "
+              f"| {r['floor_median_ms']:.3f} | {r['alone_median_ms']:.3f} / {r['alone_p95_ms']:.3f}, "
+              f"{r['alone_over_floor']:.1f}x | {r['iterations_median']:.0f} / {r['iterations_max']} "
               f"| {_fmt(sqp)} / {_fmt(r['casadi_sqp_p95_ms'])} | {_fmt(ipo, '.2f')} / {_fmt(r['ipopt_p95_ms'], '.2f')} "
               f"| {ratio} | {_fmt(r['casadi_sqp_max_input_diff'], '.1e')} / {_fmt(r['ipopt_max_input_diff'], '.1e')} "
               f"| {r['failures']} / {_fmt(r['casadi_sqp_failures'], 'd')} / {_fmt(r['ipopt_failures'], 'd')} |",

@@ -81,7 +81,7 @@ def test_compiled_sqp_loop_takes_the_general_loops_path(monkeypatch, case):
         cfg = MpcConfig(horizon=n_h, dt=0.05, safety_radius=3.0, deadline=10.0)  # no wall-clock cut
     trusts = rng.uniform(0, 1, len(peds))
     compiled = _closed_loop(model, cost, cfg, peds, trusts, x0, 60, SqpSolver())
-    monkeypatch.setattr(SqpSolver, "_compiled_steps", lambda self, s: (1, False))
+    monkeypatch.setattr(SqpSolver, "_run_compiled", lambda self, p, u, until: None)
     general = _closed_loop(model, cost, cfg, peds, trusts, x0, 60, SqpSolver())
     for (uc, sc, rc, fc), (ug, sg, rg, fg) in zip(compiled, general, strict=True):
         assert sc is sg and rc == rg and fc == fg

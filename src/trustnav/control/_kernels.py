@@ -293,3 +293,74 @@ def one_minus_gamma(trust, gamma_ini, delta, lam, out):
             return False
         out[i] = 1.0 - (gamma_ini + delta * t**lam)
     return True
+
+
+@njit(cache=True)
+def row_violations(g, start, n_first):
+    """(worst violation of the rows g[start:start + n_first], worst of g[start:], their sum):
+    violations max(0, -row) of the CBF rows from ``start`` on (one pass, no temporaries)."""
+    first = 0.0
+    worst = 0.0
+    total = 0.0
+    for i in range(start, g.shape[0]):
+        v = -g[i]
+        if v > 0.0:
+            total += v
+            if v > worst:
+                worst = v
+            if i < start + n_first and v > first:
+                first = v
+    return first, worst, total
+
+
+@njit(cache=True)
+def velocity_stage(
+    x_in, peds_in, trust, gamma_ini, delta, lam, goal_x, goal_y, gain, v_max, dt, rollout, max_coordinate,
+    x0, origin, peds, omg, ref,
+):  # fmt: skip
+    """The step's data of a planar-velocity problem (``VelocityTrackingCost`` with its bounded
+    proportional reference) in one call, as :meth:`MpcProblem.set_checked_stage` writes it: the
+    ego-centred state ``x0`` and pedestrians ``peds`` about ``origin`` (the ego's position),
+    1 - gamma_j (:func:`one_minus_gamma`) and the reference u_bar (:func:`reference_velocities`,
+    from the goal in ego-centred coordinates). Returns 0, or 1 (the ego is beyond
+    ``max_coordinate``), 2 (a trust outside [0, 1] or NaN): the outputs are then incomplete."""
+    ox, oy = x_in[0], x_in[1]
+    if abs(ox) > max_coordinate or abs(oy) > max_coordinate:
+        return 1
+    if not one_minus_gamma(trust, gamma_ini, delta, lam, omg):
+        return 2
+    origin[0], origin[1] = ox, oy
+    for i in range(x_in.shape[0]):
+        x0[i] = x_in[i]
+    x0[0], x0[1] = 0.0, 0.0
+    for i in range(peds_in.shape[0]):
+        peds[i, 0] = peds_in[i, 0] - ox
+        peds[i, 1] = peds_in[i, 1] - oy
+    goal = np.empty(2)
+    goal[0], goal[1] = goal_x - ox, goal_y - oy
+    reference_velocities(x0, goal, gain, v_max, dt, rollout, ref)
+    return 0
+
+
+@njit(cache=True)
+def clip_plan(u0, lo, hi, out):
+    """``out`` = u0 (N, n_u) clipped to [lo, hi] per input, as np.minimum(np.maximum(u0, lo), hi)
+    (NaN kept)."""
+    for k in range(u0.shape[0]):
+        for d in range(u0.shape[1]):
+            v = u0[k, d]
+            if v < lo[d]:
+                v = lo[d]
+            elif v > hi[d]:
+                v = hi[d]
+            out[k, d] = v
+
+
+@njit(cache=True)
+def shift_plan(plan, out):
+    """``out`` = the plan (N, n_u) shifted by one step, its last input held."""
+    n = plan.shape[0]
+    for k in range(n):
+        src = k + 1 if k + 1 < n else n - 1
+        for d in range(plan.shape[1]):
+            out[k, d] = plan[src, d]

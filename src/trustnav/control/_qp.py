@@ -92,6 +92,8 @@ class QpStructs:
         self.result[0], self.result[1] = self.x.ctypes.data, self.lam.ctypes.data
         self.result_words = self.result.view(np.int32)  # exitflag at word 8
         self.addresses = (self.result.ctypes.data, self.problem.ctypes.data, self.settings.ctypes.data)
+        # the compiled loops' trailing arguments
+        self.tail = (self.sense, self.x, self.lam, self.result_words, *self.addresses)
 
     def holds(self, h, f, a, bu, bl) -> bool:
         """True when the structures point at these very arrays."""
@@ -102,11 +104,14 @@ class QpStructs:
 @njit(cache=True)
 def single_integrator_full_steps(
     max_it, tol, u, seen, x0, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat,
-    bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+    bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, trial,
 ):  # fmt: skip
-    """Full SQP steps u <- u + dU of the single-integrator problem from ``u`` (changed in place),
-    as :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them: the QP at u,
-    solved by DAQP; stop when max |dU| < tol. The iterate of each QP is copied to ``seen``.
+    """SQP steps of the single-integrator problem from ``u`` (changed in place), as
+    :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them: the QP at u, solved
+    by DAQP; full steps u <- u + dU for the first ``full_its`` iterations, then the backtracking
+    line search of :func:`bicycle_steps` on the L1 merit (weight ``mu``; ``trial`` its buffer);
+    stop when the step taken, max |alpha dU|, is below tol. The iterate of each QP is copied to
+    ``seen``.
 
     Returns (iterations, state, cost at the last built point, DAQP exit flag): state 1 converged
     (the QP buffers hold the data at the final u, the cost is its cost), 0 ``max_it`` iterations
@@ -116,10 +121,13 @@ def single_integrator_full_steps(
     n_h = u.shape[0]
     cost = 0.0
     flag = 0
+    fresh = False
     for it in range(1, max_it + 1):
-        cost = single_integrator_qp(
-            x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
-        )
+        if not fresh:
+            cost = single_integrator_qp(
+                x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+            )
+        fresh = False
         _warm_start(sense, lam)
         _quadprog(result_addr, problem_addr, settings_addr)
         flag = result_words[8]
@@ -129,16 +137,40 @@ def single_integrator_full_steps(
             seen[it - 1, k, 0] = u[k, 0]
             seen[it - 1, k, 1] = u[k, 1]
         step = 0.0
+        if it <= full_its:
+            for k in range(n_h):
+                for d in range(2):
+                    dk = xsol[2 * k + d]
+                    u[k, d] = u[k, d] + dk
+                    if abs(dk) > step:
+                        step = abs(dk)
+            if step < tol:  # converged: the QP buffers and the cost at the final iterate, for its check
+                cost = single_integrator_qp(
+                    x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+                )
+                return it, 1, cost, flag
+            continue
+        merit0 = cost + mu * _violation(g)
+        alpha = 1.0
+        c1 = cost
+        for _ in range(8):
+            for k in range(n_h):
+                for d in range(2):
+                    trial[k, d] = min(max(u[k, d] + alpha * xsol[2 * k + d], ulo[d]), uhi[d])
+            c1 = single_integrator_qp(
+                x0, trial, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+            )
+            if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
+                break
+            alpha *= 0.5
         for k in range(n_h):
             for d in range(2):
-                dk = xsol[2 * k + d]
-                u[k, d] = u[k, d] + dk
-                if abs(dk) > step:
-                    step = abs(dk)
-        if step < tol:  # converged: the QP buffers and the cost at the final iterate, for its check
-            cost = single_integrator_qp(
-                x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
-            )
+                a = abs(xsol[2 * k + d])
+                if a > step:
+                    step = a
+                u[k, d] = trial[k, d]
+        cost, fresh = c1, True  # the buffers hold the data at the accepted trial
+        if alpha * step < tol:
             return it, 1, cost, flag
     return max_it, 0, cost, flag
 

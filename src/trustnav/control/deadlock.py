@@ -93,6 +93,9 @@ class DeadlockResolver:
         (N,) (R plus any uncertainty margin)."""
         c = self.config
         self.note = None
+        if not self._route and speed >= c.stall_speed:  # moving and on no route: nothing to do (the common case)
+            self._stalled = self._next_search = 0.0
+            return None
         dist_goal = float(np.hypot(*(goal - position)))
         if self._route:
             if dist_goal <= c.reach:

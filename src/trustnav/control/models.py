@@ -145,7 +145,7 @@ class DynamicsModel:
 
     def check_state(self, x: ArrayLike) -> NDArray[np.float64]:
         arr = np.asarray(x, dtype=float).reshape(-1)
-        if arr.shape != (self.nx,) or not math.isfinite(arr.sum()):
+        if arr.shape != (self.nx,) or not math.isfinite(sum(arr.tolist())):
             raise ValueError(f"{self.name} state must be {self.nx} finite numbers, got {x!r}")
         return arr
 

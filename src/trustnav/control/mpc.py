@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from trustnav.control._kernels import shift_plan
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
@@ -195,8 +196,10 @@ class MpcController:
         position with probability ``config.confidence`` (:func:`uncertainty_margins`)."""
         t0 = _wall()
         peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)  # refuse bad input first
-        now = self._now(time)
-        x, peds = self._compensate(self.model.check_state(state), peds, vels, velocities is not None, now)
+        now = self._clock if time is None else self._now(time)
+        x = self.model.check_state(state)
+        if self.config.latency > 0:
+            x, peds = self._compensate(x, peds, vels, velocities is not None, now)
         p = self.problem
         margins = None
         if covariances is not None:
@@ -205,7 +208,11 @@ class MpcController:
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
         detour, tracked = None, p.cost
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
-            radii = self.config.safety_radius + (np.zeros(len(peds)) if margins is None else margins)
+            radii = (
+                np.full(len(peds), self.config.safety_radius)
+                if margins is None
+                else self.config.safety_radius + margins
+            )
             speed = float(np.hypot(*self._last_control[:2]))
             waypoint = self._deadlock.goal(x[:2], speed, np.asarray(tracked.goal, dtype=float), peds, radii)
             detour = self._deadlock.note
@@ -213,7 +220,11 @@ class MpcController:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
         if self._yielder is not None and len(peds):  # the yielding layer may stop the car short of someone
             road, lane = self._road, p.cost
-            radii = self.config.safety_radius + (np.zeros(len(peds)) if margins is None else margins)
+            radii = (
+                np.full(len(peds), self.config.safety_radius)
+                if margins is None
+                else self.config.safety_radius + margins
+            )
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
                                         peds, vels, radii)  # fmt: skip
@@ -228,16 +239,15 @@ class MpcController:
             p.cost = tracked
         shifted = None
         if self._plan is not None:  # the previous plan shifted by one step, its last input held
-            shifted = np.empty_like(self._plan)
-            shifted[:-1] = self._plan[1:]
-            shifted[-1] = self._plan[-1]
+            shifted = np.empty(self._plan.shape)
+            shift_plan(self._plan, shifted)
         u0 = p.initial_guess() if shifted is None else shifted
         # deterministic: the solver's iteration budget alone bounds the step (no wall clock)
         deadline = None if self.config.deterministic else max(self.config.step_deadline - (_wall() - t0), 0.0)
         res: SolveResult = self.solver.solve(p, u0, deadline=deadline)
-        plan, status, source = res.inputs, res.status, "solver"
+        plan, status, source = res.inputs, res.status, "solver"  # res.inputs: a fresh array, the controller's own
         fv, viol, message = res.first_row_violation, res.cbf_violation, res.message
-        if res.status is not SolveStatus.OPTIMAL:
+        if status is not SolveStatus.OPTIMAL:
             # checked, ranked fallbacks: the solver's plan competes with the shifted previous plan
             # and braking to rest; ties keep the solver's plan
             cands = [("solver", res.inputs)] if np.isfinite(res.inputs).all() else []
@@ -267,11 +277,12 @@ class MpcController:
         if decided > FEAS_TOL:
             note = f"CBF rows fixed by the current state (no input changes them) violated by {decided:.3g}"
             message = f"{message}; {note}" if message else note
+        first = plan[0].copy()
         self._plan = plan.copy()
-        self._last_control = plan[0].copy()
-        self._sent(now, self._last_control)
+        self._last_control = first
+        self._sent(now, first)
         return MpcSolution(
-            control=plan[0].copy(),
+            control=first.copy(),
             inputs=plan.copy(),
             predicted_states=predicted,
             status=status,

@@ -40,6 +40,7 @@ from trustnav.control.costs import (
 )
 from trustnav.control.deadlock import DeadlockConfig
 from trustnav.control.models import Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
+from trustnav.control.reference import BoundedProportionalReference as BPReference
 from trustnav.control.yielding import YieldConfig
 from trustnav.trust import PAPER_GAMMA_NUMERICAL, GammaParams, gamma
 
@@ -131,6 +132,12 @@ class PlanCheck(NamedTuple):
     cost: float
 
 
+def _sum(arr: NDArray[np.float64]) -> float:
+    """Sum of a float array, cheap for the few numbers of a step's data (a non-finite entry, or an
+    overflow, makes it non-finite)."""
+    return sum(arr.ravel().tolist()) if arr.size <= 64 else float(arr.sum())
+
+
 def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
     """An (N, 2) array of finite points (N may be 0); anything else is refused by name and shape."""
     if (
@@ -139,7 +146,7 @@ def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
         and value.ndim == 2
         and value.shape[1] == 2
         and value.flags.c_contiguous
-        and math.isfinite(float(value.sum()))
+        and math.isfinite(_sum(value))
     ):
         return value  # the common case, checked cheaply (NaN and inf make the sum non-finite)
     try:
@@ -268,6 +275,7 @@ class MpcProblem:
         self.nonlinear = not (model.linear and cost.constant_hessian)
         self.kind = (model.name, type(cost).__name__)  # problems that share a QP structure
         self._fused = FUSED_KERNELS.get((type(model), type(cost)))
+        self._velocity_stage = type(model) is SingleIntegrator  # set_checked_stage: one compiled call
         self.n_state_rows = self.n_h * len(model.state_rows(np.zeros(model.nx), self.n_h, config.dt))
         self.x0 = np.zeros(model.nx)
         self.origin = np.zeros(2)
@@ -280,6 +288,7 @@ class MpcProblem:
         self._constants: tuple | None = None  # what a fused kernel takes from the frozen model and cost
         self._plain_radii = False  # radii and r2 hold R for every pedestrian (no margins)
         self._qp_structs: _qp.QpStructs | None = None  # DAQP's C structures over H, f, A, bu, bl
+        self._seen = np.empty((0, self.n_h, 2))  # iterates of the compiled loop
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -323,37 +332,64 @@ class MpcProblem:
     ) -> None:
         """:meth:`set_stage` for inputs already validated by :func:`as_pedestrians`,
         :func:`check_margins` and the model."""
+        cost = self.cost
+        if self._velocity_stage and type(cost) is VelocityTrackingCost and type(cost.reference) is BPReference:
+            # the common case in one compiled call (the same arithmetic as the general code below,
+            # which refuses bad data with its messages)
+            n_p = tr.shape[0]
+            x_new, origin, peds_c = np.empty(x0.shape[0]), np.empty(2), np.empty((n_p, 2))
+            omg, ref = np.empty(n_p), np.empty((self.n_h, 2))
+            gp, goal, r = self.config.gamma, cost.goal, cost.reference
+            code = kern.velocity_stage(
+                x0, peds, tr, gp.gamma_ini, gp.delta, gp.lam, float(goal[0]), float(goal[1]), float(r.gain),
+                float(r.v_max), float(self.config.dt), r.mode == "rollout", MAX_COORDINATE, x_new, origin, peds_c,
+                omg, ref,
+            )  # fmt: skip
+            if code == 0:
+                self.vels, self.origin, self.x0, self.peds, self.one_minus_gamma = vels, origin, x_new, peds_c, omg
+                self._set_radii(n_p, margins)
+                if n_p != self.n_p:
+                    self._resize(n_p)
+                self.u_prev = np.zeros(self.model.nu) if u_prev is None else np.asarray(u_prev, dtype=float).copy()
+                self.stage = ref
+                return
         x0 = x0.copy()
         self.vels = vels
         # ego-centred coordinates: the problem is solved relative to the ego's position, so large
         # map coordinates (1e9 m) lose no precision; inputs are translation invariant
-        if abs(x0[0]) > MAX_COORDINATE or abs(x0[1]) > MAX_COORDINATE:
+        ox, oy = float(x0[0]), float(x0[1])
+        if abs(ox) > MAX_COORDINATE or abs(oy) > MAX_COORDINATE:
             raise ValueError(
                 f"ego position {x0[:2].tolist()} is beyond +-{MAX_COORDINATE:g} m, where float64 cannot hold "
                 "millimetre offsets between ego and pedestrians: use a local origin"
             )
-        self.origin = x0[:2].copy()
-        x0[:2] = 0.0
-        self.x0 = np.ascontiguousarray(x0)
-        self.peds = np.ascontiguousarray(peds - self.origin)
+        origin = x0[:2].copy()
+        self.origin = origin
+        x0[0] = x0[1] = 0.0
+        self.x0 = x0  # a fresh 1-D copy: contiguous
+        n_p = tr.shape[0]
+        self.peds = peds - origin  # a new (N, 2) array: contiguous
         gp = self.config.gamma
-        omg = np.empty(tr.shape[0])
+        omg = np.empty(n_p)
         if not kern.one_minus_gamma(tr, gp.gamma_ini, gp.delta, gp.lam, omg):
             gamma(tr, gp)  # raises, naming the trusts outside [0, 1]
         self.one_minus_gamma = omg
-        radius = self.config.safety_radius
+        self._set_radii(n_p, margins)
+        if n_p != self.n_p:
+            self._resize(n_p)
+        self.u_prev = np.zeros(self.model.nu) if u_prev is None else np.asarray(u_prev, dtype=float).copy()
+        self.stage = cost.prepare(x0, origin, self.n_h, self.config.dt)
+
+    def _set_radii(self, n_p: int, margins: NDArray[np.float64] | None) -> None:
+        """R, plus each pedestrian's margin, and its square (kept from the last step when unchanged)."""
         if margins is not None:
-            self.radii = radius + margins
+            self.radii = self.config.safety_radius + margins
             self.r2 = np.ascontiguousarray(self.radii * self.radii)
             self._plain_radii = False
-        elif not (self._plain_radii and self.radii.shape[0] == tr.shape[0]):  # else: unchanged, kept
-            self.radii = np.full(tr.shape[0], radius)
+        elif not (self._plain_radii and self.radii.shape[0] == n_p):  # else: unchanged, kept
+            self.radii = np.full(n_p, self.config.safety_radius)
             self.r2 = np.ascontiguousarray(self.radii * self.radii)
             self._plain_radii = True
-        if self.peds.shape[0] != self.n_p:
-            self._resize(self.peds.shape[0])
-        self.u_prev = np.zeros(self.model.nu) if u_prev is None else np.asarray(u_prev, dtype=float).copy()
-        self.stage = self.cost.prepare(self.x0, self.origin, self.n_h, self.config.dt)
 
     def pedestrian_barrier(self) -> PedestrianBarrier:
         """The step's pedestrians as a :class:`PedestrianBarrier` (ego-centred coordinates)."""
@@ -374,10 +410,17 @@ class MpcProblem:
         return cost
 
     def compiled_steps(
-        self, u: NDArray[np.float64], max_it: int, tol: float, primal_tol: float, merit_weight: float
+        self,
+        u: NDArray[np.float64],
+        max_it: int,
+        tol: float,
+        primal_tol: float,
+        merit_weight: float,
+        full_steps: int | None = None,
     ) -> tuple[int, int, float, int, NDArray[np.float64]] | None:
         """Up to ``max_it`` SQP iterations from ``u`` (changed in place) in one compiled call: full
-        steps for the single integrator (:func:`~trustnav.control._qp.single_integrator_full_steps`),
+        steps for the single integrator (:func:`~trustnav.control._qp.single_integrator_full_steps`;
+        after ``full_steps`` iterations, when given, the line search of the bicycle's),
         steps with a line search on the L1 merit (weight ``merit_weight``) for the bicycle
         (:func:`~trustnav.control._qp.bicycle_steps`). None where there is no compiled loop (other
         models and costs, user barriers, no rows, DAQP's C API unavailable). Returns (iterations,
@@ -391,13 +434,15 @@ class MpcProblem:
         if qs is None or not qs.holds(self.H, self.f, self.A, self.bu, self.bl) or qs.settings[0] != primal_tol:
             qs = self._qp_structs = _qp.QpStructs(self.H, self.f, self.A, self.bu, self.bl, primal_tol)
         c = self.config
-        seen = np.empty((max_it, self.n_h, 2))
-        tail = (qs.sense, qs.x, qs.lam, qs.result_words, *qs.addresses)
+        seen = self._seen
+        if seen.shape[0] != max_it:  # the iterates' buffer, reused: its rows are read before the next call
+            seen = self._seen = np.empty((max_it, self.n_h, 2))
+        tail = qs.tail
         if fused is _fused_single_integrator:
             it, state, cost, flag = _qp.single_integrator_full_steps(
                 max_it, tol, u, seen, self.x0, self.stage, self.peds, self.vels, self.one_minus_gamma, self.r2,
                 c.dt, self.timing_code, self.n_obs, self.ulo, self.uhi, self.xs, self.sens, self.f, self.A, self.bl,
-                self.bu, self.g, *tail,
+                self.bu, self.g, *tail, max_it if full_steps is None else full_steps, merit_weight, np.empty_like(u),
             )  # fmt: skip
         else:
             if self._constants is None:
@@ -479,11 +524,8 @@ class MpcProblem:
 
     def check_built(self, cost: float) -> PlanCheck:
         """:class:`PlanCheck` of the point of the last :meth:`build` (which returned ``cost``)."""
-        g = self.g[self.n_decided :]
-        if g.size == 0 or g.min() >= 0.0:
-            return PlanCheck(0.0, 0.0, 0.0, cost)
-        viol = np.maximum(0.0, -g)
-        return PlanCheck(float(viol[: self.n_obs].max()), float(viol.max()), float(viol.sum()), cost)
+        first, worst, total = kern.row_violations(self.g, self.n_decided, self.n_obs)  # one compiled pass
+        return PlanCheck(first, worst, total, cost)
 
     def decided_violation(self) -> float:
         """Worst violation of the rows no input can change (0 for the single integrator), at the

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
 
+from trustnav.control import _kernels as kern
 from trustnav.control.barrier import h_quad
 from trustnav.control.problem import MpcProblem, PlanCheck
 
@@ -458,17 +459,30 @@ class SqpSolver:
         checked, and beaten or restored where a better checked plan exists."""
         t0 = time.perf_counter()
         p = problem
+        if type(u0) is np.ndarray and u0.dtype == np.float64 and u0.shape == (p.n_h, p.ulo.shape[0]):
+            u = np.empty(u0.shape)  # the controller's warm start: clipped in one compiled call
+            kern.clip_plan(u0, p.ulo, p.uhi, u)
+        else:
+            u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
+        until = None if deadline is None else t0 + deadline
+        compiled = self._run_compiled(p, u, until)
+        if compiled is not None and compiled[1] > 0:
+            # the common case: the compiled loop converged; the QP buffers hold the data at u
+            final = p.check_built(compiled[2])
+            if final.worst <= FEAS_TOL:
+                return SolveResult(u.copy(), SolveStatus.OPTIMAL, compiled[0], final.cost, final.worst, False, "",
+                                   time.perf_counter() - t0, final.first_row)  # fmt: skip
         # the feasibility SQP is part of the recovery (off with max_restarts = 0), for problems that
         # ask for it (validated on the single integrator)
         phase1 = self.max_restarts > 0 and p.feasibility_search
         s = self._State(
             p=p,
-            u=np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi),
-            until=None if deadline is None else t0 + deadline,
+            u=u,
+            until=until,
             until_recovery=None if deadline is None else t0 + 0.8 * deadline,
             memo=self._Recovery(self.phase1_qps if phase1 else 0),
         )
-        first, done = self._compiled_steps(s)
+        first, done = self._compiled_steps(s, compiled)
         for s.it in range(first, self.max_iter + 1 if not done else first):
             if s.until is not None and time.perf_counter() > s.until:
                 s.deadline_hit = True
@@ -490,35 +504,46 @@ class SqpSolver:
                 break
         return self._result(s, deadline, t0)
 
-    def _compiled_steps(self, s: SqpSolver._State) -> tuple[int, bool]:
+    def _run_compiled(self, p: MpcProblem, u: NDArray[np.float64], until: float | None):
         """The first iterations in one compiled call (:meth:`MpcProblem.compiled_steps`) while the
         hard QP is feasible: the general loop's arithmetic (:meth:`_iterate_qp`,
         :meth:`_take_step`: full steps for a linear problem, up to ``full_step_iterations``; the
-        L1-merit line search for a nonlinear one) without its per-iteration Python work. Used
-        where the deadline cannot cut them short (it is checked between QPs otherwise): twice the
-        last QP's time, times the iterations, fits. Returns (iteration to continue at, solve
-        done); an infeasible QP hands the iterate over, its QP data built (``fresh``), to the
-        general loop, which solves that QP again and recovers."""
-        p = s.p
+        L1-merit line search for a nonlinear one) without its per-iteration Python work, from
+        ``u`` (changed in place). Used where the deadline cannot cut them short (it is checked
+        between QPs otherwise): twice the last QP's time, times the iterations, fits. Returns
+        (iterations, state, cost, last, compiled output) or None where it did not run."""
         key = (p.kind, p.n, p.m, False)
-        if self._models.get(key) is None or p.m == 0 or self._owners.get(key) is not p:
-            return 1, False  # first QP of this size or owner: the general path sets DAQP up
+        if p.m == 0 or self._owners.get(key) is not p or self._models.get(key) is None:
+            return None  # first QP of this size or owner: the general path sets DAQP up
         last = self.max_iter if p.nonlinear else min(self.max_iter, self.full_step_iterations)
-        until = s.until
-        if until is not None and time.perf_counter() + 2.0 * last * self._qp_seconds.get(key, math.inf) >= until:
-            return 1, False
-        u = s.u.copy()
-        out = p.compiled_steps(u, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT)
+        if until is not None:
+            left = (until - time.perf_counter()) / max(2.0 * self._qp_seconds.get(key, math.inf), 1e-12)
+            if left <= last:
+                return None
+            if not p.nonlinear:  # the line-search iterations too, as many as fit
+                last = min(self.max_iter, max(last, int(left) - 1))
+        elif not p.nonlinear:
+            last = self.max_iter
+        out = p.compiled_steps(u, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT, self.full_step_iterations)
         if out is None:
+            return None
+        return out[0], out[1], out[2], last, out
+
+    def _compiled_steps(self, s: SqpSolver._State, compiled=None) -> tuple[int, bool]:
+        """Hands the result of :meth:`_run_compiled` (run on ``s.u``) to the general loop.
+        Returns (iteration to continue at, solve done); an infeasible QP hands the iterate over,
+        its QP data built (``fresh``), to the general loop, which solves that QP again and
+        recovers."""
+        if compiled is None:
             return 1, False
-        it, state, s.cost, _, iterates = out
-        s.seen.extend(iterates)
-        s.it, s.u = it, u
+        it, state, s.cost, last, out = compiled
+        s.seen.extend(out[4])
+        s.it = it
         if state < 0:
             s.fresh = True
             return it, False
-        s.step = u  # not None: a QP was solved (the step itself is not used after this)
-        s.fresh = p.nonlinear  # the buffers hold the data at the last accepted trial
+        s.step = s.u  # not None: a QP was solved (the step itself is not used after this)
+        s.fresh = s.p.nonlinear  # the buffers hold the data at the last accepted trial
         if state > 0:  # the buffers hold the data at the final iterate: its exact check needs no build
             s.converged = s.final_built = True
             return it, True
