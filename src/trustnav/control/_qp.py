@@ -154,21 +154,14 @@ def single_integrator_full_steps(
         alpha = 1.0
         c1 = cost
         for _ in range(8):
-            for k in range(n_h):
-                for d in range(2):
-                    trial[k, d] = min(max(u[k, d] + alpha * xsol[2 * k + d], ulo[d]), uhi[d])
+            _trial_point(u, xsol, alpha, ulo, uhi, trial)
             c1 = single_integrator_qp(
                 x0, trial, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
             )
             if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
                 break
             alpha *= 0.5
-        for k in range(n_h):
-            for d in range(2):
-                a = abs(xsol[2 * k + d])
-                if a > step:
-                    step = a
-                u[k, d] = trial[k, d]
+        step = _accept(u, trial, xsol, step)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
         if alpha * step < tol:
             return it, 1, cost, flag
@@ -180,6 +173,26 @@ def _warm_start(sense, lam):
     for i in range(sense.shape[0]):  # the working set of the last QP solved (its multipliers)
         lam_i = lam[i]
         sense[i] = _ACTIVE if lam_i > 1e-12 else (_ACTIVE | _LOWER if lam_i < -1e-12 else 0)
+
+
+@njit(cache=True)
+def _trial_point(u, xsol, alpha, ulo, uhi, trial):
+    """The line search's trial point: u + alpha * the QP's step, clipped to the input bounds."""
+    for k in range(u.shape[0]):
+        for d in range(2):
+            trial[k, d] = min(max(u[k, d] + alpha * xsol[2 * k + d], ulo[d]), uhi[d])
+
+
+@njit(cache=True)
+def _accept(u, trial, xsol, step):
+    """Take the accepted trial as the iterate; the largest QP step component (at least ``step``)."""
+    for k in range(u.shape[0]):
+        for d in range(2):
+            a = abs(xsol[2 * k + d])
+            if a > step:
+                step = a
+            u[k, d] = trial[k, d]
+    return step
 
 
 @njit(cache=True)
@@ -227,9 +240,7 @@ def bicycle_steps(
         alpha = 1.0
         c1 = cost
         for _ in range(8):
-            for k in range(n_h):
-                for d in range(2):
-                    trial[k, d] = min(max(u[k, d] + alpha * xsol[2 * k + d], ulo[d]), uhi[d])
+            _trial_point(u, xsol, alpha, ulo, uhi, trial)
             c1 = bicycle_qp(
                 x0, trial, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
                 n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
@@ -239,13 +250,7 @@ def bicycle_steps(
             if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
                 break
             alpha *= 0.5
-        step = 0.0
-        for k in range(n_h):
-            for d in range(2):
-                a = abs(xsol[2 * k + d])
-                if a > step:
-                    step = a
-                u[k, d] = trial[k, d]
+        step = _accept(u, trial, xsol, 0.0)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
         if alpha * step < tol:
             return it, 1, cost, flag

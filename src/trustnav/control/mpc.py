@@ -208,11 +208,7 @@ class MpcController:
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
         detour, tracked = None, p.cost
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
-            radii = (
-                np.full(len(peds), self.config.safety_radius)
-                if margins is None
-                else self.config.safety_radius + margins
-            )
+            radii = self._radii(len(peds), margins)
             speed = float(np.hypot(*self._last_control[:2]))
             waypoint = self._deadlock.goal(x[:2], speed, np.asarray(tracked.goal, dtype=float), peds, radii)
             detour = self._deadlock.note
@@ -220,11 +216,7 @@ class MpcController:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
         if self._yielder is not None and len(peds):  # the yielding layer may stop the car short of someone
             road, lane = self._road, p.cost
-            radii = (
-                np.full(len(peds), self.config.safety_radius)
-                if margins is None
-                else self.config.safety_radius + margins
-            )
+            radii = self._radii(len(peds), margins)
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
                                         peds, vels, radii)  # fmt: skip
@@ -301,6 +293,11 @@ class MpcController:
             state_repaired=repaired,
             detour=detour,
         )
+
+    def _radii(self, n: int, margins: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """Each pedestrian's R plus its uncertainty margin, as the route layers see them."""
+        r = self.config.safety_radius
+        return np.full(n, r) if margins is None else r + margins
 
     def _repair(self, x, plan, source, status, fv, viol, broken):
         """A plan that breaks the model's hard state limits (the bicycle's v >= speed_min) by
