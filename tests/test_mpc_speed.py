@@ -81,7 +81,7 @@ def test_compiled_sqp_loop_takes_the_general_loops_path(monkeypatch, case):
         cfg = MpcConfig(horizon=n_h, dt=0.05, safety_radius=3.0, deadline=10.0)  # no wall-clock cut
     trusts = rng.uniform(0, 1, len(peds))
     compiled = _closed_loop(model, cost, cfg, peds, trusts, x0, 60, SqpSolver())
-    monkeypatch.setattr(SqpSolver, "_run_compiled", lambda self, p, u, until: None)
+    monkeypatch.setattr(SqpSolver, "_compiled_budget", lambda self, p, until: None)  # no compiled loop at all
     general = _closed_loop(model, cost, cfg, peds, trusts, x0, 60, SqpSolver())
     for (uc, sc, rc, fc), (ug, sg, rg, fg) in zip(compiled, general, strict=True):
         assert sc is sg and rc == rg and fc == fg
@@ -151,3 +151,99 @@ def test_lane_cost_bicycle_controller_still_plans_within_bounds():
     lo, hi = model.input_bounds()
     assert np.all(sol.inputs >= lo - 1e-9) and np.all(sol.inputs <= hi + 1e-9)
     assert np.allclose(sol.predicted_states, DynamicsModel.rollout(model, [0.0, 0.0, 0.0, 8.0], sol.inputs, 0.1))
+
+
+def _whole_loop(whole: bool, worlds, cfg, x0, steps_each):
+    """Closed loop of a single-integrator controller over a sequence of worlds (pedestrians,
+    velocities, trusts), with the whole-step path on or off; each step's full solution."""
+    model, cost = SingleIntegrator(), VelocityTrackingCost(goal=(20, 45))
+    ctl = MpcController(model, cost, cfg, SqpSolver())
+    ctl._whole = whole
+    x, out, k = np.array(x0, dtype=float), [], 0
+    for peds, vels, trusts in worlds:
+        for _ in range(steps_each):
+            sol = ctl.step(x, peds + k * cfg.dt * vels, vels, trusts)
+            out.append(sol)
+            x = model.step(x, sol.control, cfg.dt)
+            k += 1
+    return out
+
+
+def test_whole_step_is_the_general_step_bit_for_bit(monkeypatch):
+    """The whole control step in one compiled call (stage data, warm start, SQP, check, rollout)
+    returns what the general path returns, to the bit, over closed loops with moving pedestrians,
+    recoveries (a crowd on the path) and a pedestrian count that changes; and it is the path
+    taken in most steps. Where it gives a step up (a recovery), DAQP's warm start is restored, so
+    the general path's result is unchanged too."""
+    from trustnav.control import _qp
+    from trustnav.control.problem import MpcProblem
+
+    if not _qp.AVAILABLE:
+        pytest.skip("DAQP's C API layout differs: the Python path is used")
+    rng = np.random.default_rng(1)
+    crowd = np.column_stack([rng.uniform(15, 25, 10), rng.uniform(12, 30, 10)])
+    trusts = rng.uniform(0, 1, 10)
+    moving = rng.normal(0.0, 0.3, crowd.shape)
+    worlds = [(crowd, 0 * moving, trusts), (crowd[:6], moving[:6], trusts[:6]), (crowd[6:], moving[6:], trusts[6:])]
+    cfg = MpcConfig(horizon=20, dt=0.05, safety_radius=3.0, deterministic=True)
+    taken = []
+    original = MpcProblem.whole_step
+
+    def spy(self, *args):
+        out = original(self, *args)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(MpcProblem, "whole_step", spy)
+    fast = _whole_loop(True, worlds, cfg, [20.0, 5.0], 40)
+    assert sum(taken) >= 0.8 * len(fast) and not all(taken), "most steps whole, some handed to the general path"
+    asked = len(taken)
+    general = _whole_loop(False, worlds, cfg, [20.0, 5.0], 40)
+    assert len(taken) == asked + 1, "with the whole step off, only the warm-up loads it"
+    for a, b in zip(fast, general, strict=True):
+        assert np.array_equal(a.inputs, b.inputs) and np.array_equal(a.predicted_states, b.predicted_states)
+        assert (a.status, a.iterations, a.cbf_violation, a.first_row_violation, a.recovered, a.detour) == (
+            b.status, b.iterations, b.cbf_violation, b.first_row_violation, b.recovered, b.detour
+        )  # fmt: skip
+    assert any(s.recovered for s in general), "the crowd should exercise the recovery"
+
+
+def test_whole_step_refuses_bad_input_and_takes_other_arrays_as_the_general_step():
+    """Bad values reaching the compiled step are refused with the general path's messages;
+    integers, float32, lists and non-contiguous views give the float64 step's plan, and the
+    compiled call gains no new signature (nothing is compiled inside a control loop)."""
+    from trustnav.control import _qp
+
+    cfg = MpcConfig(horizon=7, dt=0.05, safety_radius=3.0, deterministic=True)
+    peds, trusts = np.array([[19.0, 20.0], [22.0, 28.0]]), np.array([0.2, 0.9])
+
+    def warm():
+        ctl = MpcController(SingleIntegrator(), VelocityTrackingCost(goal=(20, 45)), cfg)
+        for _ in range(3):
+            ctl.step(np.array([20.0, 5.0]), peds, np.zeros((2, 2)), trusts)
+        return ctl
+
+    ctl = warm()
+    with pytest.raises(ValueError, match="pedestrians must be finite"):
+        ctl.step(np.array([20.0, 5.0]), np.array([[19.0, np.nan], [22.0, 28.0]]), np.zeros((2, 2)), trusts)
+    with pytest.raises(ValueError, match="velocities must be finite"):
+        ctl.step(np.array([20.0, 5.0]), peds, np.array([[0.0, np.inf], [0.0, 0.0]]), trusts)
+    with pytest.raises(ValueError, match=r"trust"):
+        ctl.step(np.array([20.0, 5.0]), peds, np.zeros((2, 2)), np.array([0.2, 1.5]))
+    with pytest.raises(ValueError, match="state must be 2 finite numbers"):
+        ctl.step(np.array([20.0, np.nan]), peds, np.zeros((2, 2)), trusts)
+    with pytest.raises(ValueError, match="beyond"):
+        ctl.step(np.array([2e12, 5.0]), peds, np.zeros((2, 2)), trusts)
+    signatures = len(_qp.single_integrator_step.signatures)
+    reference = warm().step(np.array([20.0, 5.5]), peds, np.zeros((2, 2)), trusts).inputs
+    wide = np.zeros((2, 4))
+    wide[:, ::2] = peds
+    for args in (
+        (np.array([20, 5.5]), peds.astype(np.float32), np.zeros((2, 2), dtype=int), trusts),
+        ([20.0, 5.5], peds.tolist(), None, trusts.tolist()),
+        (np.array([20.0, 5.5]), wide[:, ::2], np.zeros((2, 2)), trusts),
+        (np.array([20.0, 5.5]), np.asfortranarray(peds), np.zeros((2, 2)), np.repeat(trusts, 2)[::2]),
+    ):
+        got = warm().step(*args).inputs
+        assert np.allclose(got, reference, rtol=0, atol=1e-9), args
+    assert len(_qp.single_integrator_step.signatures) == signatures

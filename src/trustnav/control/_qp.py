@@ -21,9 +21,18 @@ import numpy as np
 from numba import njit, types
 from numpy.typing import NDArray
 
-from trustnav.control._kernels import INF, bicycle_qp, single_integrator_qp
+from trustnav.control._kernels import (
+    INF,
+    bicycle_qp,
+    clip_plan,
+    row_violations,
+    shift_plan,
+    single_integrator_qp,
+    single_integrator_rollout,
+    velocity_stage,
+)
 
-__all__ = ["AVAILABLE", "QpStructs", "bicycle_steps", "single_integrator_full_steps"]
+__all__ = ["AVAILABLE", "QpStructs", "bicycle_steps", "single_integrator_full_steps", "single_integrator_step"]
 
 _SETTINGS_WORDS = 17  # sizeof(DAQPSettings) = 136 bytes
 _PROBLEM_WORDS = 10  # sizeof(DAQPProblem) = 80 bytes
@@ -166,6 +175,56 @@ def single_integrator_full_steps(
         if alpha * step < tol:
             return it, 1, cost, flag
     return max_it, 0, cost, flag
+
+
+@njit(cache=True)
+def single_integrator_step(
+    x_in, peds_in, vels, trust, prev, max_it, x0, origin, peds, omg, ref, shifted, lam0, gamma_ini, delta, lam_g,
+    goal_x, goal_y, gain, v_max, dt, rollout, max_coordinate, tol, seen, r2, timing, n_decided, ulo, uhi, pos, sens,
+    f, a_mat, bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu,
+):  # fmt: skip
+    """A whole control step of the single-integrator problem with a velocity-tracking cost, in one
+    compiled call: the step's data (:func:`velocity_stage`, from world-frame ``x_in``,
+    ``peds_in``, ``trust``), the warm start (the previous plan ``prev`` shifted by one step, its
+    last input held, clipped to the bounds), the SQP (:func:`single_integrator_full_steps`), the
+    exact check of the final plan (:func:`row_violations`) and its predicted positions. The same
+    arithmetic, in the same order, as the controller's general path; a Python step through it
+    touches a few objects instead of hundreds, which is what costs when the caches are cold.
+
+    The step's data is written to ``x0``, ``origin``, ``peds``, ``1 - gamma`` (``omg``) and u_bar
+    (``ref``), DAQP's working set on entry (``lam``'s values) to ``lam0`` (a caller that hands the
+    step to the general path restores it, so that path runs as if this call had not);
+    ``shifted`` is scratch. Returns (code, iterations, state, cost, first-row violation, worst
+    violation, plan, predicted positions): code 0 ran, 1 / 2 as :func:`velocity_stage`, 3 a
+    non-finite state, pedestrian or velocity (nothing ran: the general path refuses the input by
+    name); state as :func:`single_integrator_full_steps`, the violations only where it is 1."""
+    n_p = peds_in.shape[0]
+    n_h = prev.shape[0]
+    u = np.empty((n_h, 2))
+    predicted = np.empty((n_h + 1, 2))
+    total = x_in[0] + x_in[1]
+    for j in range(n_p):
+        total += peds_in[j, 0] + peds_in[j, 1] + vels[j, 0] + vels[j, 1]
+    if not np.isfinite(total):
+        return 3, 0, 0, 0.0, 0.0, 0.0, u, predicted
+    lam0[:] = lam
+    code = velocity_stage(
+        x_in, peds_in, trust, gamma_ini, delta, lam_g, goal_x, goal_y, gain, v_max, dt, rollout, max_coordinate,
+        x0, origin, peds, omg, ref,
+    )  # fmt: skip
+    if code != 0:
+        return code, 0, 0, 0.0, 0.0, 0.0, u, predicted
+    shift_plan(prev, shifted)
+    clip_plan(shifted, ulo, uhi, u)
+    it, state, cost, _ = single_integrator_full_steps(
+        max_it, tol, u, seen, x0, ref, peds, vels, omg, r2, dt, timing, n_p, ulo, uhi, pos, sens, f, a_mat, bl, bu,
+        g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, shifted,
+    )  # fmt: skip
+    first = worst = 0.0
+    if state > 0:
+        first, worst, _ = row_violations(g, n_decided, n_p)
+        single_integrator_rollout(x_in, u, dt, predicted)
+    return 0, it, state, cost, first, worst, u, predicted
 
 
 @njit(cache=True)

@@ -79,6 +79,16 @@ class DeadlockResolver:
         self._next_search = 0.0  # stall time at which a route is searched for again
         self.note: str | None = None  # what the layer did on the latest step (None: nothing)
 
+    def idle(self, speed: float) -> bool:
+        """True, with :meth:`goal`'s bookkeeping for it done, when :meth:`goal` would return None at
+        once: the vehicle moves (``speed`` of its last command) and follows no route. False, with
+        nothing changed, otherwise."""
+        if self._route or speed < self.config.stall_speed:
+            return False
+        self.note = None
+        self._stalled = self._next_search = 0.0
+        return True
+
     def goal(
         self,
         position: NDArray[np.float64],
@@ -92,10 +102,9 @@ class DeadlockResolver:
         position: the vehicle's (2,); speed: of its last command; pedestrians (N, 2) and their radii
         (N,) (R plus any uncertainty margin)."""
         c = self.config
-        self.note = None
-        if not self._route and speed >= c.stall_speed:  # moving and on no route: nothing to do (the common case)
-            self._stalled = self._next_search = 0.0
+        if self.idle(speed):  # moving and on no route: nothing to do (the common case)
             return None
+        self.note = None
         dist_goal = float(np.hypot(*(goal - position)))
         if self._route:
             if dist_goal <= c.reach:

@@ -20,8 +20,8 @@ from trustnav.control._kernels import shift_plan
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
-from trustnav.control.models import Dynamics
-from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians
+from trustnav.control.models import Dynamics, SingleIntegrator
+from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians, whole_step_kernel_loaded
 from trustnav.control.solvers import (
     FEAS_TOL,
     MERIT_WEIGHT,
@@ -98,6 +98,11 @@ class MpcController:
         roads = [b for b in self.problem.barriers if isinstance(b, RoadEdgeBarrier)]
         if self.config.yielding is not None and isinstance(self.problem.cost, LaneTrackingCost) and roads:
             self._yielder, self._road = Yielder(self.config.yielding), roads[0]
+        # the whole step in one compiled call where it applies (see _whole_step)
+        self._whole = (
+            isinstance(self.model, SingleIntegrator) and self.config.latency <= 0 and self._yielder is None
+            and not self.problem.n_user
+        )  # fmt: skip
         self._warm_up()
         self.reset()
 
@@ -108,6 +113,12 @@ class MpcController:
         p.set_stage(x, [[1e3, 1e3]], None, [0.0])
         p.build(p.initial_guess())
         p.compiled_steps(p.initial_guess().copy(), 1, 1.0, PRIMAL_TOL, MERIT_WEIGHT)  # loads the compiled SQP loop
+        if self._whole:  # and the whole step's
+            one = np.zeros((1, 2))
+            p.whole_step(x, one + 1e3, one, np.zeros(1), p.initial_guess(), np.zeros(2), 1, 1.0, PRIMAL_TOL,
+                         MERIT_WEIGHT, 1, FEAS_TOL)  # fmt: skip
+            p._whole_args = None
+            whole_step_kernel_loaded()
         p._qp_structs = None  # no warm start from this stand-in problem
         p.set_stage(x, np.zeros((0, 2)), None, [])
 
@@ -170,8 +181,9 @@ class MpcController:
         return x, peds
 
     def _sent(self, now: float, command: NDArray[np.float64]) -> None:
-        """Remember a command sent at ``now``; forget those no longer acting or pending."""
-        self._issued.append((now, command.copy()))
+        """Remember a command sent at ``now`` (the controller's own array, never changed in place);
+        forget those no longer acting or pending."""
+        self._issued.append((now, command))
         lat = self.config.latency
         while len(self._issued) > 1 and self._issued[1][0] + lat <= now + 1e-9:
             self._issued.popleft()  # a newer command has taken effect
@@ -195,6 +207,10 @@ class MpcController:
         approach, predicted over the latency and the horizon, so that R holds from the true
         position with probability ``config.confidence`` (:func:`uncertainty_margins`)."""
         t0 = _wall()
+        if self._whole and covariances is None:  # the common step in one compiled call
+            done = self._whole_step(state, pedestrians, velocities, trusts, time, t0)
+            if done is not None:
+                return done
         peds, vels, tr = as_pedestrians(pedestrians, velocities, trusts)  # refuse bad input first
         now = self._clock if time is None else self._now(time)
         x = self.model.check_state(state)
@@ -292,6 +308,61 @@ class MpcController:
             state_violation=state_violation,
             state_repaired=repaired,
             detour=detour,
+        )
+
+    def _whole_step(self, state, pedestrians, velocities, trusts, time, t0: float) -> MpcSolution | None:
+        """:meth:`step` in one compiled call (:meth:`SqpSolver.solve_whole_step`) for the common
+        case: float64 arrays as the general path would make them, a previous plan, the route layer
+        idle, and a solve that converges to a plan passing its check. The same result as the
+        general path, which runs where this returns None: a whole step in Python costs more in
+        cold caches, as in a vehicle's loop between perception's frames, than its arithmetic."""
+        prev = self._plan
+        if (
+            prev is None
+            or type(self.solver) is not SqpSolver
+            or type(state) is not np.ndarray
+            or type(pedestrians) is not np.ndarray
+            or type(trusts) is not np.ndarray
+            or state.shape != (2,)
+            or pedestrians.ndim != 2
+            or trusts.ndim != 1
+        ):
+            return None
+        if velocities is None:  # standing pedestrians, as the general path reads None
+            velocities = np.zeros(pedestrians.shape)
+        if (
+            type(velocities) is not np.ndarray
+            or pedestrians.shape != velocities.shape
+            or pedestrians.shape[1] != 2
+            or trusts.shape[0] != pedestrians.shape[0]
+        ):  # dtypes, dimensions and layouts: the compiled call takes float64 C arrays only
+            return None
+        now = self._clock if time is None else self._now(time)
+        dl, last = self._deadlock, self._last_control
+        if dl is not None and not dl.idle(math.hypot(last[0], last[1])):
+            return None
+        c = self.config
+        deadline = None if c.deterministic else max(c.step_deadline - (_wall() - t0), 0.0)
+        out = self.solver.solve_whole_step(self.problem, state, pedestrians, velocities, trusts, prev, last, deadline)
+        if out is None:
+            return None
+        iterations, _, first_row, worst, plan, predicted = out  # plan: fresh, the controller's own
+        first = plan[0].copy()
+        self._plan = plan
+        self._last_control = first
+        self._sent(now, first)
+        return MpcSolution(
+            control=first.copy(),
+            inputs=plan.copy(),
+            predicted_states=predicted,
+            status=SolveStatus.OPTIMAL,
+            fallback=False,
+            slack_used=False,
+            cbf_violation=worst,
+            iterations=iterations,
+            solve_time=_wall() - t0,
+            first_row_violation=first_row,
+            detour=None if dl is None else dl.note,
         )
 
     def _radii(self, n: int, margins: NDArray[np.float64] | None) -> NDArray[np.float64]:

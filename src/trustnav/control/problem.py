@@ -289,6 +289,7 @@ class MpcProblem:
         self._plain_radii = False  # radii and r2 hold R for every pedestrian (no margins)
         self._qp_structs: _qp.QpStructs | None = None  # DAQP's C structures over H, f, A, bu, bl
         self._seen = np.empty((0, self.n_h, 2))  # iterates of the compiled loop
+        self._whole_args: tuple | None = None  # whole_step's compiled call's fixed arguments
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -392,8 +393,9 @@ class MpcProblem:
             self._plain_radii = True
 
     def pedestrian_barrier(self) -> PedestrianBarrier:
-        """The step's pedestrians as a :class:`PedestrianBarrier` (ego-centred coordinates)."""
-        return PedestrianBarrier(self.peds, self.vels, self.one_minus_gamma, self.radii)
+        """The step's pedestrians as a :class:`PedestrianBarrier` (ego-centred coordinates; copies:
+        the next step may write the problem's arrays in place)."""
+        return PedestrianBarrier(self.peds.copy(), self.vels.copy(), self.one_minus_gamma.copy(), self.radii.copy())
 
     # ---- the linearised QP ----
     def build(self, u: NDArray[np.float64]) -> float:
@@ -456,6 +458,87 @@ class MpcProblem:
                 self.H, self.f, self.A, self.bl, self.bu, self.g, *tail,
             )  # fmt: skip
         return it, state, cost, flag, seen[: it - 1 if state < 0 else it]
+
+    def whole_step(
+        self,
+        x: NDArray[np.float64],
+        peds: NDArray[np.float64],
+        vels: NDArray[np.float64],
+        tr: NDArray[np.float64],
+        prev: NDArray[np.float64],
+        u_prev: NDArray[np.float64],
+        max_it: int,
+        tol: float,
+        primal_tol: float,
+        merit_weight: float,
+        full_steps: int,
+        feas_tol: float,
+    ) -> tuple[int, float, float, float, NDArray[np.float64], NDArray[np.float64]] | None:
+        """The step's data, the warm start from the previous plan ``prev`` and up to ``max_it`` SQP
+        iterations (as :meth:`compiled_steps`) in one compiled call
+        (:func:`~trustnav.control._qp.single_integrator_step`), for the common case: a single
+        integrator tracking a velocity (its bounded proportional reference), pedestrians of the
+        last step's number with R alone, no user barriers, the DAQP structures of the last step.
+        ``x``, ``peds``, ``vels``, ``tr``: C-contiguous float64 arrays of the right shapes (the
+        caller checks; values are checked here). Returns (iterations, cost, first-row violation,
+        worst violation, plan, predicted positions) when the loop converged to a plan whose rows
+        all hold within ``feas_tol``, the problem then holding the step's data as
+        :meth:`set_checked_stage` leaves it; else None, with DAQP's warm start as it was, so that
+        the general path runs (recovering, or refusing a bad input by name) exactly as without
+        this call."""
+        qs, ck = self._qp_structs, self._whole_args
+        n_p = self.n_p
+        if not (
+            ck is not None and ck[0] is self.cost and ck[1] is qs and ck[2] is self.r2 and ck[3] is self.f
+            and ck[4] >= max_it and ck[5] == (tol, primal_tol, merit_weight, full_steps)
+        ):  # fmt: skip
+            ck = self._whole_args = self._whole_arguments(max_it, tol, primal_tol, merit_weight, full_steps)
+            if ck is None:
+                return None
+        if tr.shape[0] != n_p or not n_p or not self._plain_radii:
+            return None
+        try:
+            out = _qp.single_integrator_step(x, peds, vels, tr, prev, max_it, *ck[6])
+        except TypeError:  # not float64 C arrays of the right dimensions (no new compilation)
+            return None
+        code, it, state, value, first, worst, u, predicted = out
+        if code != 0 or state <= 0 or worst > feas_tol:
+            if code == 0:
+                qs.lam[:] = ck[7]
+            return None
+        self.vels, self.u_prev = vels, u_prev  # the controller's last command: never changed in place
+        self.x0, self.origin, self.peds, self.one_minus_gamma, self.stage = ck[8]
+        return it, value, first, worst, u, predicted
+
+    def _whole_arguments(self, max_it: int, tol: float, primal_tol: float, merit_weight: float, full_steps: int):
+        """What :meth:`whole_step` passes to its compiled call besides the step's data, with what it
+        was made from (the cost, the DAQP structures, R^2 and the QP buffers it points at, the
+        settings); None where the compiled step does not apply."""
+        cost, qs = self.cost, self._qp_structs
+        if (
+            self._fused is not _fused_single_integrator
+            or self.n_user
+            or self.n_decided
+            or type(cost) is not VelocityTrackingCost
+            or type(cost.reference) is not BPReference
+            or qs is None
+            or not qs.holds(self.H, self.f, self.A, self.bu, self.bl)
+            or qs.settings[0] != primal_tol
+        ):
+            return None
+        c, gp, r, goal = self.config, self.config.gamma, cost.reference, cost.goal
+        seen = np.empty((max(max_it, 64), self.n_h, 2))  # the loop's iterates: scratch here
+        # the step's data: written in place at every whole step (the general path makes new arrays)
+        stage = (np.empty(2), np.empty(2), np.empty((self.n_p, 2)), np.empty(self.n_p), np.empty((self.n_h, 2)))
+        lam0 = np.empty(qs.lam.shape[0])
+        args = (
+            *stage, np.empty((self.n_h, 2)), lam0, float(gp.gamma_ini), float(gp.delta), float(gp.lam),
+            float(goal[0]), float(goal[1]), float(r.gain), float(r.v_max), float(c.dt), r.mode == "rollout",
+            float(MAX_COORDINATE), float(tol), seen, self.r2, int(self.timing_code), int(self.n_decided), self.ulo,
+            self.uhi, self.xs, self.sens, self.f, self.A, self.bl, self.bu, self.g, *qs.tail, int(full_steps),
+            float(merit_weight),
+        )  # fmt: skip
+        return cost, qs, self.r2, self.f, seen.shape[0], (tol, primal_tol, merit_weight, full_steps), args, lam0, stage
 
     def _build_parts(self, u: NDArray[np.float64]) -> float:
         """:meth:`build` through the protocols: model sensitivities, cost, pedestrian rows,
@@ -601,6 +684,15 @@ class MpcProblem:
     def decision_rows_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
         """The rows an input sequence can change: :meth:`constraints_np` without the decided rows."""
         return self.constraints_np(u_flat)[self.n_decided :]
+
+
+def whole_step_kernel_loaded() -> None:
+    """Once :meth:`MpcProblem.whole_step`'s compiled call is loaded, it compiles nothing more:
+    inputs of other types (integers, views, another dimension) go to the general path, which
+    converts or refuses them, instead of compiling a variant in the middle of a control loop."""
+    kernel = _qp.single_integrator_step
+    if kernel.signatures:
+        kernel.disable_compile()
 
 
 def _fused_single_integrator(p: MpcProblem, u: NDArray[np.float64]) -> float:

@@ -512,6 +512,17 @@ class SqpSolver:
         ``u`` (changed in place). Used where the deadline cannot cut them short (it is checked
         between QPs otherwise): twice the last QP's time, times the iterations, fits. Returns
         (iterations, state, cost, last, compiled output) or None where it did not run."""
+        last = self._compiled_budget(p, until)
+        if last is None:
+            return None
+        out = p.compiled_steps(u, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT, self.full_step_iterations)
+        if out is None:
+            return None
+        return out[0], out[1], out[2], last, out
+
+    def _compiled_budget(self, p: MpcProblem, until: float | None) -> int | None:
+        """The iterations the compiled loop may take (see :meth:`_run_compiled`), or None where it
+        cannot run: no DAQP workspace of this size and owner yet, or too little time left."""
         key = (p.kind, p.n, p.m, False)
         if p.m == 0 or self._owners.get(key) is not p or self._models.get(key) is None:
             return None  # first QP of this size or owner: the general path sets DAQP up
@@ -524,10 +535,30 @@ class SqpSolver:
                 last = min(self.max_iter, max(last, int(left) - 1))
         elif not p.nonlinear:
             last = self.max_iter
-        out = p.compiled_steps(u, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT, self.full_step_iterations)
-        if out is None:
+        return last
+
+    def solve_whole_step(
+        self,
+        p: MpcProblem,
+        x: NDArray[np.float64],
+        peds: NDArray[np.float64],
+        vels: NDArray[np.float64],
+        tr: NDArray[np.float64],
+        prev: NDArray[np.float64],
+        u_prev: NDArray[np.float64],
+        deadline: float | None = None,
+    ) -> tuple[int, float, float, float, NDArray[np.float64], NDArray[np.float64]] | None:
+        """:meth:`MpcProblem.set_checked_stage`, the warm start from the previous plan ``prev``
+        and :meth:`solve` in one compiled call (:meth:`MpcProblem.whole_step`) where the problem
+        allows it and the compiled loop converges to a plan that passes its check, the common
+        case: the result :meth:`solve` would give OPTIMAL, as (iterations, cost, first-row
+        violation, worst violation, plan, predicted positions). None: the caller takes the general
+        path, which runs as if this call had not."""
+        last = self._compiled_budget(p, None if deadline is None else time.perf_counter() + deadline)
+        if last is None:
             return None
-        return out[0], out[1], out[2], last, out
+        return p.whole_step(x, peds, vels, tr, prev, u_prev, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT,
+                            self.full_step_iterations, FEAS_TOL)  # fmt: skip
 
     def _compiled_steps(self, s: SqpSolver._State, compiled=None) -> tuple[int, bool]:
         """Hands the result of :meth:`_run_compiled` (run on ``s.u``) to the general loop.
