@@ -14,7 +14,8 @@ search over N frames of a video (people already found are followed from their la
 through the full pipeline, as ``trustnav estimate`` does) and the **realtime** mode
 (:class:`~trustnav.perception.realtime.RealtimePoseBackend` behind a
 :class:`~trustnav.perception.streaming.StreamingPerceiver`, frames handed over at the stream's
-rate ``--stream-fps``, the newest frame taken, older ones dropped). Rows (``--json``): ``name``,
+rate ``--stream-fps``, the newest frame taken, older ones dropped; or, per ``--max-latency`` S, frames
+waiting while younger than S seconds). Rows (``--json``): ``name``, ``max_latency_s`` (0: newest only),
 ``mode`` (reference | realtime), ``fps`` (frames processed per second of wall time; for the
 realtime mode also ``throughput_fps``, frames per second when handed over as fast as it takes
 them), ``recall_vs_reference`` (share of the reference's person-frames the realtime mode also
@@ -23,13 +24,16 @@ stream seconds, from a person's first reference detection to the realtime mode's
 the reference follows for >= 0.5 s and finds >= 0.5 s before the end; ``never_found`` of them the
 realtime mode never reports, counted to the end of the clip), ``traits_within_0_1``
 (share of the person-frames found by both whose eye contact and phone use agree within 0.1),
-``latency_ms_p95``, ``dropped`` and the load average during the run. The inputs: walk_a (640x480)
+``latency_ms_p95``, ``dropped`` and the load average during the run; the reference's row gives
+``traits_frame_to_frame``, the same agreement between a track's consecutive reference frames (how
+steady the per-frame values are to begin with). The inputs: walk_a (640x480)
 and walk_a enlarged to 1280x720 (a dash-cam-sized stand-in: the shared data have no 1280x720 clip).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import time
@@ -95,7 +99,7 @@ def run_reference(frames: list, fps: float, model: LookingModel) -> tuple[list[l
     return out, len(frames) / seconds
 
 
-def run_realtime(frames: list, fps: float, model: LookingModel) -> dict:
+def run_realtime(frames: list, fps: float, model: LookingModel, max_latency: float | None = None) -> dict:
     """The realtime mode: a throughput pass (frames handed over as fast as it takes them), then a
     stream at ``fps`` through the StreamingPerceiver (newest frame first, drops counted)."""
     from trustnav.perception.realtime import RealtimePoseBackend
@@ -110,7 +114,7 @@ def run_realtime(frames: list, fps: float, model: LookingModel) -> dict:
     backend.reset()
     pipeline.tracker = PersonTracker(fps=fps)
     per_frame: list[list[dict] | None] = [None] * len(frames)
-    with StreamingPerceiver(pipeline, mode="realtime") as stream:
+    with StreamingPerceiver(pipeline, mode="realtime", max_latency=max_latency) as stream:
         start = time.perf_counter()
         for i, f in enumerate(frames):
             time.sleep(max(0.0, start + i / fps - time.perf_counter()))  # the camera's clock
@@ -167,6 +171,22 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
             "traits_within_0_1": agree / both if both else float("nan")}  # fmt: skip
 
 
+def frame_to_frame_agreement(reference: list[list[dict]]) -> float:
+    """Share of a track's consecutive reference frames whose eye-contact and phone values agree
+    within 0.1: how steady the per-frame trait values are before any real-time shortcut (a bound
+    on how well two modes that fit a person on different frames or regions can agree)."""
+    agree = pairs = 0
+    for prev, cur in itertools.pairwise(reference):
+        before = {p["id"]: p for p in prev}
+        for p in cur:
+            q = before.get(p["id"])
+            if q is None or not all(np.isfinite([p["eye"], q["eye"], p["phone"], q["phone"]])):
+                continue
+            pairs += 1
+            agree += abs(p["eye"] - q["eye"]) <= 0.1 and abs(p["phone"] - q["phone"]) <= 0.1
+    return agree / pairs if pairs else float("nan")
+
+
 def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     import cv2
 
@@ -176,18 +196,23 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     for name, frames in (("walk_a", walk), ("walk_a_1280x720", big)):
         load0 = os.getloadavg()[0]
         reference, ref_fps = run_reference(frames, args.stream_fps, model)
-        rt = run_realtime(frames, args.stream_fps, model)
-        load = round((load0 + os.getloadavg()[0]) / 2, 2)
         size = f"{frames[0].shape[1]}x{frames[0].shape[0]}"
-        rows.append({"name": name, "size": size, "mode": "reference", "fps": ref_fps, "load_avg": load})
-        rows.append({"name": name, "size": size, "mode": "realtime", "fps": rt["fps"],
-                     "throughput_fps": rt["throughput_fps"], **compare(reference, rt["per_frame"], args.stream_fps),
-                     "latency_ms_p95": rt["latency_ms_p95"], "dropped": rt["dropped"], "load_avg": load,
-                     "searches": rt["searches"], "search_mean_s": rt["search_mean_s"],
-                     "stream_fps": args.stream_fps})  # fmt: skip
-    cols = ["name", "size", "mode", "fps", "throughput_fps", "recall_vs_reference", "first_detection_s",
-            "first_detection_people", "never_found", "traits_within_0_1", "latency_ms_p95", "dropped",
-            "load_avg"]  # fmt: skip
+        rows.append({"name": name, "size": size, "mode": "reference", "fps": ref_fps,
+                     "traits_frame_to_frame": frame_to_frame_agreement(reference),
+                     "load_avg": round(load0, 2)})  # fmt: skip
+        for budget in args.max_latency:
+            load0 = os.getloadavg()[0]
+            rt = run_realtime(frames, args.stream_fps, model, budget or None)
+            load = round((load0 + os.getloadavg()[0]) / 2, 2)
+            rows.append({"name": name, "size": size, "mode": "realtime", "max_latency_s": budget, "fps": rt["fps"],
+                         "throughput_fps": rt["throughput_fps"],
+                         **compare(reference, rt["per_frame"], args.stream_fps),
+                         "latency_ms_p95": rt["latency_ms_p95"], "dropped": rt["dropped"], "load_avg": load,
+                         "searches": rt["searches"], "search_mean_s": rt["search_mean_s"],
+                         "stream_fps": args.stream_fps})  # fmt: skip
+    cols = ["name", "size", "mode", "max_latency_s", "fps", "throughput_fps", "recall_vs_reference",
+            "first_detection_s", "first_detection_people", "never_found", "traits_within_0_1",
+            "traits_frame_to_frame", "latency_ms_p95", "dropped", "load_avg"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:
@@ -201,6 +226,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
     ap.add_argument("--stream-fps", type=float, default=15.0, help="--realtime: the stream's frame rate")
+    ap.add_argument("--max-latency", type=float, nargs="+", default=[0.0, 0.3],
+                    help="--realtime: StreamingPerceiver latency budgets to run, s (0: newest frame only)")  # fmt: skip
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")

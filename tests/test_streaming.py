@@ -224,3 +224,41 @@ def test_estimate_with_realtime_perception_keeps_its_tables(sequences, looking_w
     recs = json.loads((out / "tracks.json").read_text())
     assert {r["frame"] for r in recs} == {f.name for f in clip.iterdir()}  # people on every frame
     assert {"frame", "track_id", "bbox", "phone", "eye_contact", "trust"} <= set(recs[0])
+
+
+def test_latency_budget_lets_a_stream_catch_up_without_losing_frames_and_bounds_the_wait():
+    """max_latency: a stream that falls behind for a moment (a slow first step, as the first frame's
+    full search) keeps its frames and catches up; frames older than the budget are dropped, so no
+    result waits much longer than the budget plus a step."""
+
+    def step(frame, time: float):
+        import time as _t
+
+        _t.sleep(0.15 if time == 0.0 else 0.01)  # a slow first frame, then faster than the camera
+        return [time]
+
+    def run(budget):
+        with StreamingPerceiver(step, mode="realtime", max_latency=budget) as sp:
+            for i in range(30):  # 50 frames/s
+                sp.submit(FRAME, i * 0.02)
+                time.sleep(0.02)
+            results = sp.drain(timeout=5.0)
+            return results, sp.stats
+
+    _, s0 = run(None)
+    kept, s1 = run(0.5)
+    assert s0["dropped"] >= 3, "newest-frame-only drops the frames that came during the slow step"
+    assert s1["dropped"] == 0 and len(kept) == 30, "with a 0.5 s budget every frame is processed"
+    assert [r.index for r in kept] == list(range(30))
+    tight, s2 = run(0.05)
+    assert s2["dropped"] >= 2 and s2["processed"] + s2["dropped"] == 30
+    assert max(r.latency for r in tight) < 0.05 + 0.15 + 0.1  # budget + the slow step + scheduling slack
+
+
+def test_latency_budget_is_validated():
+    with pytest.raises(ValueError, match="max_latency must be a number of seconds in \\(0, 10\\]"):
+        StreamingPerceiver(_slow(0.0), mode="realtime", max_latency=0.0)
+    with pytest.raises(ValueError, match="max_latency must be"):
+        StreamingPerceiver(_slow(0.0), mode="realtime", max_latency="soon")
+    with pytest.raises(ValueError, match="with mode='realtime'"):
+        StreamingPerceiver(_slow(0.0), mode="offline", max_latency=0.3)

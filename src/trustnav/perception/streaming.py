@@ -5,7 +5,10 @@ PerceptionPipeline`, or any callable ``(frame, time) -> people``) on a worker th
 
 - ``mode="realtime"``: the worker always takes the **newest** frame. A frame submitted while another
   is still waiting replaces it and is counted as dropped, so the latency of a result is bounded by
-  about two processing times, however far the camera runs ahead;
+  about two processing times, however far the camera runs ahead. With ``max_latency`` = S, frames
+  wait instead while they are younger than S seconds (oldest first; older ones are dropped, the
+  newest never): a stream that falls behind for a moment (the first frame's full search, a burst
+  of people) catches up without losing frames, at the price of up to S seconds more latency;
 - ``mode="offline"``: every frame is processed in order (evaluation, recorded video); ``submit``
   waits when ``max_queue`` frames are waiting.
 
@@ -58,6 +61,7 @@ class StreamingPerceiver:
         *,
         mode: str = "realtime",
         max_queue: int = 8,
+        max_latency: float | None = None,
         clock: Callable[[], float] = time.perf_counter,
     ) -> None:
         if not callable(step):
@@ -66,6 +70,16 @@ class StreamingPerceiver:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         if not isinstance(max_queue, int) or max_queue < 1:
             raise ValueError(f"max_queue must be an integer >= 1, got {max_queue!r}")
+        if max_latency is not None:
+            try:
+                ok = mode == "realtime" and 0.0 < float(max_latency) <= 10.0
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ValueError(
+                    f"max_latency must be a number of seconds in (0, 10] with mode='realtime', got {max_latency!r}"
+                )
+        self.max_latency = None if max_latency is None else float(max_latency)
         self.step = step
         self.mode = mode
         self.max_queue = max_queue if mode == "offline" else 1
@@ -98,9 +112,11 @@ class StreamingPerceiver:
             if t < self._last_time:
                 raise ValueError(f"capture_time must not decrease: {t} after {self._last_time}")
             self._last_time = t
-            if self.mode == "realtime":
+            if self.mode == "realtime" and self.max_latency is None:
                 self._dropped += len(self._waiting)
                 self._waiting.clear()
+            elif self.mode == "realtime":
+                self._drop_stale()
             else:
                 while len(self._waiting) >= self.max_queue and not self._closed:
                     self._cond.wait()
@@ -157,6 +173,14 @@ class StreamingPerceiver:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _drop_stale(self) -> None:
+        """Drop the waiting frames older than ``max_latency`` (caller holds the lock); the newest
+        frame waiting stays."""
+        now = self._clock()
+        while len(self._waiting) > 1 and now - self._waiting[0][3] > self.max_latency:
+            self._waiting.popleft()
+            self._dropped += 1
+
     # -- the worker ----------------------------------------------------------------------------
 
     def _run(self) -> None:
@@ -166,6 +190,8 @@ class StreamingPerceiver:
                     self._cond.wait()
                 if self._closed:
                     return
+                if self.max_latency is not None:
+                    self._drop_stale()
                 index, t, frame, submitted = self._waiting.popleft()
                 self._working = True
                 self._cond.notify_all()
