@@ -57,7 +57,7 @@ def run(name: str, paths: list[Path], video: bool, scan_frames: int, workers: in
     pipeline(frames[0])  # warm-up (graph start-up), then start again
     backend.reset()
     pipeline.tracker = PersonTracker(fps=10.0)
-    stages: dict[str, list[float]] = {"detection": [], "landmarks": [], "traits": [], "tracking": []}
+    stages: dict[str, list[float]] = {k: [] for k in ("detection", "landmarks", "segmentation", "traits", "tracking")}
     totals, people = [], []
     for frame in frames:
         t0 = time.perf_counter()
@@ -250,7 +250,7 @@ def main() -> None:
         rows.append(run("crossing.jpg", [SHARED / "data" / "street_images" / "crossing.jpg"] * 3, False, 1,
                         args.workers, model))  # fmt: skip
     cols = ["input", "size", "mode", "scan_frames", "frames", "people_per_frame", "detection_ms", "landmarks_ms",
-            "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
+            "segmentation_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

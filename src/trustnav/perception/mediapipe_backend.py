@@ -35,6 +35,9 @@ from numpy.typing import NDArray
 
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
 from trustnav.perception.frames import quiet_stderr
+from trustnav.perception.segment_search import MIN_HEIGHT_PX as SEGMENT_MIN_HEIGHT_PX
+from trustnav.perception.segment_search import MIN_PRESENCE as SEGMENT_MIN_PRESENCE
+from trustnav.perception.segment_search import blob_regions, plausible, segment_windows
 from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = [
@@ -167,6 +170,10 @@ class MediaPipeConfig:
     default because the detector's regions then change the landmarks, and LOOKING's eye contact
     with them: on the street images it no longer ranks the people facing the camera above those in
     profile (``benchmarks/trust_eval.py``, docs/perception.md).
+    segment_search: also look for the people the detector misses (seen in profile, from behind,
+    small) through person segmentation (:mod:`trustnav.perception.segment_search`): square tiles of
+    ``segment_tile`` x the shorter side; in video mode the tiles are shared out over
+    ``segment_frames`` consecutive frames (a person found is followed from its landmarks after).
     """
 
     tile_fractions: tuple[float, ...] = (1.0, 0.5, 0.33)
@@ -184,8 +191,17 @@ class MediaPipeConfig:
     box_pad: tuple[float, float, float, float] = (0.03, 0.07, 0.03, 0.02)
     sharpen: float = 0.0
     sharpen_sigma: float = 2.0
+    segment_search: bool = True
+    segment_tile: float = 0.33
+    segment_frames: int = 4
 
     def __post_init__(self) -> None:
+        if not isinstance(self.segment_search, bool):
+            raise ValueError(f"segment_search must be True or False, got {self.segment_search!r}")
+        if not 0.1 <= self.segment_tile <= 1.0:
+            raise ValueError(f"segment_tile must be in [0.1, 1] (of the shorter side), got {self.segment_tile!r}")
+        if not isinstance(self.segment_frames, int) or self.segment_frames < 1:
+            raise ValueError(f"segment_frames must be an integer >= 1, got {self.segment_frames!r}")
         if len(self.box_pad) != 4 or any(not 0.0 <= v <= 0.5 for v in self.box_pad):
             raise ValueError(f"box_pad must be 4 margins (left, top, right, bottom) in [0, 0.5], got {self.box_pad!r}")
         if self.head_band is not None and not 0.0 <= self.head_band[0] < self.head_band[1] <= 1.0:
@@ -249,6 +265,9 @@ RETRY_MIN_PRESENCE = 0.95
 #: The overlap with another person's box at which a person found on a retried region is dropped.
 RETRY_MAX_IOU = 0.2
 
+#: The detection score given to a person found from segmentation (no detector score exists).
+SEGMENT_SCORE = 0.5
+
 #: A landmark check: (33 landmarks, region used) -> the Person, or None if rejected.
 Accept = Callable[[NDArray[np.float64], NDArray[np.float64]], "Person | None"]
 
@@ -286,6 +305,17 @@ class _Graphs:
             blank = np.zeros((64, 64, 3), dtype=np.uint8)
             self.detector.process({"image": blank})  # start the graphs now, quietly
             self.landmarker.process({"image": blank, "roi": self.rect(x_center=0.5, y_center=0.5, width=1, height=1)})
+        self.segmenter: Any = None  # person segmentation, started on first use
+
+    def segment(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> NDArray[np.float32]:
+        """Person-pixel probabilities of one window of the frame (MediaPipe's selfie segmentation)."""
+        if self.segmenter is None:
+            import mediapipe
+
+            with quiet_stderr(), quiet_environment(), protobuf_warning_ignored():
+                self.segmenter = mediapipe.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0)
+        x0, y0, x1, y1 = window
+        return self.segmenter.process(np.ascontiguousarray(frame[y0:y1, x0:x1])).segmentation_mask
 
     def detect(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> list[tuple[NDArray, float]]:
         """Person regions found in one window of the frame, in frame pixels."""
@@ -378,6 +408,8 @@ class _Graphs:
     def close(self) -> None:
         self.detector.close()
         self.landmarker.close()
+        if self.segmenter is not None:
+            self.segmenter.close()
 
 
 class MediaPipePoseBackend:
@@ -481,6 +513,13 @@ class MediaPipePoseBackend:
             busy["landmarks"] += dt
             results.append(out)
         scores += [score for _, score in groups]
+        # stage 3: the people the detector does not see, proposed by person segmentation
+        if self.config.segment_search:
+            t = time.perf_counter()
+            found = self._segment_search(frame, [res[3] for res in results if res is not None], w, h)
+            busy["segmentation"] = (time.perf_counter() - t) * self.config.workers
+            results += found
+            scores += [SEGMENT_SCORE] * len(found)
         # each result: (landmarks, region to follow next frame, region used, person)
         people = [res[3] for res in results if res is not None]
         nxt = [(res[1], score) for res, score in zip(results, scores, strict=True) if res is not None]
@@ -489,6 +528,38 @@ class MediaPipePoseBackend:
         self._frame_index += 1
         self.last_timing = {k: v / self.config.workers for k, v in busy.items()}
         return [people[i] for i in keep]
+
+    def _segment_search(self, frame: NDArray[np.uint8], known: list[Person], w: int, h: int) -> list[tuple]:
+        """Landmark results (as the detector's) for the people that person segmentation proposes
+        and nobody in ``known`` covers (:mod:`trustnav.perception.segment_search`)."""
+        windows = segment_windows(h, w, self.config.segment_tile)
+        n = self.config.segment_frames
+        if self.video and n > 1:
+            windows = windows[self._frame_index % n :: n]
+        mask = np.zeros((h, w), dtype=np.float32)
+        for (x0, y0, x1, y1), m in zip(windows, self._map(lambda g, win: g.segment(frame, win), windows), strict=True):
+            np.maximum(mask[y0:y1, x0:x1], m, out=mask[y0:y1, x0:x1])
+        proposals = [
+            (roi, blob) for roi, blob in blob_regions(mask, 0.85 * SEGMENT_MIN_HEIGHT_PX)
+            if not any(_contains(p.bbox, _region_box(roi), share=0.6, min_area=0.0) for p in known)
+        ]  # fmt: skip
+
+        def fit(g: _Graphs, proposal: tuple) -> tuple | None:
+            roi, blob = proposal
+            res = g.landmarks(frame, roi)
+            if res is None or float(np.mean(res[0][11:29, 4])) < SEGMENT_MIN_PRESENCE:
+                return None
+            person = self._person(res[0], SEGMENT_SCORE, w, h, res[2])
+            if person is None or not plausible(person.bbox, res[0], mask, blob):
+                return None
+            person.extra["segmented"] = True
+            return (*res, person)
+
+        out: list[tuple] = []
+        for res in self._map(fit, proposals):
+            if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
+                out.append(res)
+        return out
 
     def _person(self, lm: NDArray[np.float64], score: float, w: int, h: int, roi: NDArray) -> Person | None:
         body = lm[11:29]
@@ -569,11 +640,11 @@ def one_box_per_person(people: list[Person], iou: float) -> list[int]:
     retried region (:data:`RETRY_SCALES`) come last and give way to any person they overlap by
     :data:`RETRY_MAX_IOU`: in a group, the tighter square can fit one body on two people.
     """
-    order = sorted(range(len(people)), key=lambda i: (people[i].extra.get("retried", False), -people[i].score))
+    order = sorted(range(len(people)), key=lambda i: (_secondary(people[i]), -people[i].score))
     keep: list[int] = []
     for i in order:
         a = people[i]
-        limit = RETRY_MAX_IOU if a.extra.get("retried", False) else iou
+        limit = RETRY_MAX_IOU if _secondary(a) else iou
         for n, j in enumerate(keep):
             b = people[j]
             if box_iou(a.bbox, b.bbox) >= limit or _contains(b.bbox, a.bbox):
@@ -585,6 +656,18 @@ def one_box_per_person(people: list[Person], iou: float) -> list[int]:
         else:
             keep.append(i)
     return sorted(keep)
+
+
+def _secondary(p: Person) -> bool:
+    """Found only on a retried region or from segmentation: gives way to the detector's people."""
+    return bool(p.extra.get("retried", False) or p.extra.get("segmented", False))
+
+
+def _region_box(roi: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The person box a landmark region [cx, cy, side, ...] stands for (a body fills about 0.8 of
+    the square's height and 0.4 of its width)."""
+    cx, cy, side = roi[0], roi[1], roi[2]
+    return np.array([cx - 0.2 * side, cy - 0.4 * side, cx + 0.2 * side, cy + 0.4 * side])
 
 
 def _height(box: NDArray) -> float:
