@@ -516,7 +516,7 @@ class MediaPipePoseBackend:
         # stage 3: the people the detector does not see, proposed by person segmentation
         if self.config.segment_search:
             t = time.perf_counter()
-            found = self._segment_search(frame, [res[3] for res in results if res is not None], w, h)
+            found = self._segment_search(frame, [res[3].bbox for res in results if res is not None], w, h)
             busy["segmentation"] = (time.perf_counter() - t) * self.config.workers
             results += found
             scores += [SEGMENT_SCORE] * len(found)
@@ -529,19 +529,31 @@ class MediaPipePoseBackend:
         self.last_timing = {k: v / self.config.workers for k, v in busy.items()}
         return [people[i] for i in keep]
 
-    def _segment_search(self, frame: NDArray[np.uint8], known: list[Person], w: int, h: int) -> list[tuple]:
+    def _segment_search(
+        self,
+        frame: NDArray[np.uint8],
+        known: list[NDArray[np.float64]],
+        w: int,
+        h: int,
+        windows: list[tuple[int, int, int, int]] | None = None,
+        run: Callable[[Callable[[_Graphs, Any], Any], list[Any]], list[Any]] | None = None,
+    ) -> list[tuple]:
         """Landmark results (as the detector's) for the people that person segmentation proposes
-        and nobody in ``known`` covers (:mod:`trustnav.perception.segment_search`)."""
-        windows = segment_windows(h, w, self.config.segment_tile)
-        n = self.config.segment_frames
-        if self.video and n > 1:
-            windows = windows[self._frame_index % n :: n]
+        and no box of ``known`` covers (:mod:`trustnav.perception.segment_search`). ``windows``:
+        the segmentation tiles (default: all, shared out over ``segment_frames`` in video mode);
+        ``run(fn, items)``: how the graphs are run (default: the backend's workers)."""
+        run = run or self._map
+        if windows is None:
+            windows = segment_windows(h, w, self.config.segment_tile)
+            n = self.config.segment_frames
+            if self.video and n > 1:
+                windows = windows[self._frame_index % n :: n]
         mask = np.zeros((h, w), dtype=np.float32)
-        for (x0, y0, x1, y1), m in zip(windows, self._map(lambda g, win: g.segment(frame, win), windows), strict=True):
+        for (x0, y0, x1, y1), m in zip(windows, run(lambda g, win: g.segment(frame, win), windows), strict=True):
             np.maximum(mask[y0:y1, x0:x1], m, out=mask[y0:y1, x0:x1])
         proposals = [
             (roi, blob) for roi, blob in blob_regions(mask, 0.85 * SEGMENT_MIN_HEIGHT_PX)
-            if not any(_contains(p.bbox, _region_box(roi), share=0.6, min_area=0.0) for p in known)
+            if not any(_contains(box, _region_box(roi), share=0.6, min_area=0.0) for box in known)
         ]  # fmt: skip
 
         def fit(g: _Graphs, proposal: tuple) -> tuple | None:
@@ -556,7 +568,7 @@ class MediaPipePoseBackend:
             return (*res, person)
 
         out: list[tuple] = []
-        for res in self._map(fit, proposals):
+        for res in run(fit, proposals):
             if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
                 out.append(res)
         return out

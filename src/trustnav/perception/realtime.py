@@ -31,14 +31,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from trustnav.perception.mediapipe_backend import (
+    SEGMENT_SCORE,
     MediaPipeConfig,
     MediaPipePoseBackend,
     _merge_regions,
+    _region_box,
     _same_region,
     one_box_per_person,
     sharpened,
     tiles,
 )
+from trustnav.perception.segment_search import segment_windows
 from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = ["RealtimeConfig", "RealtimePoseBackend"]
@@ -113,6 +116,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._people: list[_Followed] = []
         self._searches: list[float] = []
         self._thread: threading.Thread | None = None
+        self._segment_turn = 0  # which share of the segmentation tiles the next search takes
 
     # -- the search thread -------------------------------------------------------------------
 
@@ -159,7 +163,9 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         the regions that are not people followed already; what is found is published after each
         batch of :data:`SEARCH_BATCH` windows, [(next region, score, person)], so that a person
         found early in a search is followed before the search ends. Windows are searched in order of
-        :func:`search_order` (the whole frame, then where the image changed and its side edges)."""
+        :func:`search_order` (the whole frame, then where the image changed and its side edges);
+        then person segmentation proposes the people the detector does not see
+        (:mod:`~trustnav.perception.segment_search`), published at the end of the search."""
         h, w = frame.shape[:2]
         search = sharpened(frame, self.config.sharpen, self.config.sharpen_sigma)
         windows = search_order(tiles(h, w, self.config), frame, previous)
@@ -179,6 +185,16 @@ class RealtimePoseBackend(MediaPipePoseBackend):
                     checked.append(res[1])
             if out:
                 publish(out)
+        if self.config.segment_search:  # the people the detector does not see (segment_search)
+            n = self.config.segment_frames  # a share of the segmentation tiles per search, in turn
+            windows = segment_windows(h, w, self.config.segment_tile)[self._segment_turn % n :: n]
+            self._segment_turn += 1
+            found = self._segment_search(
+                frame, [_region_box(r) for r in checked], w, h, windows,
+                lambda fn, items: [fn(self._searcher, item) for item in items],
+            )  # fmt: skip
+            if found:
+                publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
 
     def _hand_over(self, index: int, frame: NDArray[np.uint8], known: list[NDArray[np.float64]]) -> list[_Search]:
         """Give the searcher the newest frame (replacing one it has not started) and the regions of
