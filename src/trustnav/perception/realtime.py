@@ -256,6 +256,10 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             found = [p for s in searches if index - s.frame_index <= self.realtime.max_search_age for p in s.people]
         t1 = time.perf_counter()
         people = self._follow(frame, index, groups, found, w, h)
+        if index == 0 and self.config.segment_search:  # the first frame as the offline backend's
+            for res in self._segment_search(frame, [p.bbox for p in people], w, h):
+                self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], index))
+                people.append(res[3])
         self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
         self._frame_index += 1
         return people
