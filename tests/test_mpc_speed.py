@@ -247,3 +247,47 @@ def test_whole_step_refuses_bad_input_and_takes_other_arrays_as_the_general_step
         got = warm().step(*args).inputs
         assert np.allclose(got, reference, rtol=0, atol=1e-9), args
     assert len(_qp.single_integrator_step.signatures) == signatures
+
+
+def test_whole_bicycle_step_is_the_general_step_bit_for_bit(monkeypatch):
+    """The bicycle's whole step in one compiled call (lane reference, warm start, SQP with its line
+    search, check, state limits, predicted states) against the general path, to the bit, over a
+    closed loop on a lane with pedestrians stepping towards it (infeasible linearisations hand
+    steps over); most steps take the whole call."""
+    from trustnav.control import _qp
+    from trustnav.control.problem import MpcProblem
+
+    if not _qp.AVAILABLE:
+        pytest.skip("DAQP's C API layout differs: the Python path is used")
+    rng = np.random.default_rng(2)
+    peds = np.column_stack([rng.uniform(6, 40, 10), rng.choice([-1, 1], 10) * rng.uniform(2.8, 8, 10)])
+    vels = np.column_stack([np.zeros(10), -0.3 * np.sign(peds[:, 1])])
+    trusts = rng.uniform(0, 1, 10)
+    cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, deterministic=True)
+    cost = LaneTrackingCost(start=(0, 0), goal=(100, 0), reference=BoundedProportionalReference(0.5, 8.0))
+    taken = []
+    original = MpcProblem.whole_step
+
+    def spy(self, *args):
+        out = original(self, *args)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(MpcProblem, "whole_step", spy)
+    runs = []
+    for whole in (True, False):
+        ctl = MpcController(KinematicBicycle(), cost, cfg, SqpSolver())
+        ctl._whole = whole
+        x, out = np.array([0.0, 0.0, 0.0, 8.0]), []
+        for k in range(120):
+            sol = ctl.step(x, peds + k * cfg.dt * vels, vels, trusts)
+            out.append(sol)
+            x = KinematicBicycle().step(x, sol.control, cfg.dt)
+        runs.append(out)
+        if whole:
+            assert sum(taken) >= 0.5 * len(out) and not all(taken), (sum(taken), len(taken))
+    for a, b in zip(*runs, strict=True):
+        assert np.array_equal(a.inputs, b.inputs) and np.array_equal(a.predicted_states, b.predicted_states)
+        assert (a.status, a.iterations, a.cbf_violation, a.first_row_violation, a.state_violation,
+                a.decided_violation, a.source) == (b.status, b.iterations, b.cbf_violation, b.first_row_violation,
+                                                   b.state_violation, b.decided_violation, b.source)  # fmt: skip

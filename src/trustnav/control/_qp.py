@@ -24,7 +24,10 @@ from numpy.typing import NDArray
 from trustnav.control._kernels import (
     INF,
     bicycle_qp,
+    bicycle_rollout,
     clip_plan,
+    lane_march,
+    one_minus_gamma,
     row_violations,
     shift_plan,
     single_integrator_qp,
@@ -32,7 +35,14 @@ from trustnav.control._kernels import (
     velocity_stage,
 )
 
-__all__ = ["AVAILABLE", "QpStructs", "bicycle_steps", "single_integrator_full_steps", "single_integrator_step"]
+__all__ = [
+    "AVAILABLE",
+    "QpStructs",
+    "bicycle_step",
+    "bicycle_steps",
+    "single_integrator_full_steps",
+    "single_integrator_step",
+]
 
 _SETTINGS_WORDS = 17  # sizeof(DAQPSettings) = 136 bytes
 _PROBLEM_WORDS = 10  # sizeof(DAQPProblem) = 80 bytes
@@ -225,6 +235,83 @@ def single_integrator_step(
         first, worst, _ = row_violations(g, n_decided, n_p)
         single_integrator_rollout(x_in, u, dt, predicted)
     return 0, it, state, cost, first, worst, u, predicted
+
+
+@njit(cache=True)
+def bicycle_step(
+    x_in, peds_in, vels, trust, prev, u_prev, max_it, x0, origin, peds, omg, pts, yaw, speed, shifted, trial, lam0,
+    gamma_ini, delta, lam_g, start_x, start_y, goal_x, goal_y, gain, v_max, rollout, max_coordinate, tol, mu, seen,
+    weights, wheelbase, vmin, vmax, dt, n_sub, r2, timing, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl,
+    bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+):  # fmt: skip
+    """A whole control step of the kinematic bicycle with the lane-tracking cost, in one compiled
+    call, as :func:`single_integrator_step` for the single integrator: the step's data (ego-centred
+    state and pedestrians about ``origin``, 1 - gamma, the lane waypoints ``pts``, ``yaw``,
+    ``speed`` of the bounded proportional reference), the warm start, the SQP
+    (:func:`bicycle_steps`), the exact check and the predicted states. Returns (code, iterations,
+    state, cost, first-row violation, worst violation, the state-limit violation (how far the
+    predicted speed drops below ``vmin``), the violation of the rows the state decides, plan,
+    predicted states): code 0 ran, 1 the ego beyond ``max_coordinate``, 2 a trust outside [0, 1],
+    3 a non-finite input, 4 a lane of zero length (nothing ran); the violations only where the
+    state is 1."""
+    n_p = peds_in.shape[0]
+    n_h = prev.shape[0]
+    u = np.empty((n_h, 2))
+    predicted = np.empty((n_h + 1, 4))
+    total = x_in[0] + x_in[1] + x_in[2] + x_in[3]
+    for j in range(n_p):
+        total += peds_in[j, 0] + peds_in[j, 1] + vels[j, 0] + vels[j, 1]
+    if not np.isfinite(total):
+        return 3, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, u, predicted
+    ox, oy = x_in[0], x_in[1]
+    if abs(ox) > max_coordinate or abs(oy) > max_coordinate:
+        return 1, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, u, predicted
+    if not one_minus_gamma(trust, gamma_ini, delta, lam_g, omg):
+        return 2, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, u, predicted
+    # the lane reference, as BoundedProportionalReference.lane_waypoints computes it
+    a = np.empty(2)
+    a[0], a[1] = start_x - ox, start_y - oy
+    axis_x, axis_y = (goal_x - ox) - a[0], (goal_y - oy) - a[1]
+    length = np.hypot(axis_x, axis_y)
+    if not length > 0.0:
+        return 4, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, u, predicted
+    t_hat = np.empty(2)
+    t_hat[0], t_hat[1] = axis_x / length, axis_y / length
+    s = (0.0 - a[0]) * t_hat[0] + (0.0 - a[1]) * t_hat[1]
+    s = min(max(s, 0.0), length)
+    lane_march(a, t_hat, s, length, gain, v_max, dt, rollout, pts, speed)
+    heading = np.arctan2(t_hat[1], t_hat[0])
+    for k in range(yaw.shape[0]):
+        yaw[k] = heading
+    lam0[:] = lam
+    origin[0], origin[1] = ox, oy
+    for i in range(x_in.shape[0]):
+        x0[i] = x_in[i]
+    x0[0], x0[1] = 0.0, 0.0
+    for j in range(n_p):
+        peds[j, 0] = peds_in[j, 0] - ox
+        peds[j, 1] = peds_in[j, 1] - oy
+    shift_plan(prev, shifted)
+    clip_plan(shifted, ulo, uhi, u)
+    it, state, cost, _ = bicycle_steps(
+        max_it, tol, mu, u, seen, trial, x0, u_prev, pts, yaw, speed, weights, wheelbase, vmin, vmax, peds, vels,
+        omg, r2, dt, n_sub, timing, n_p, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, sense,
+        xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+    )  # fmt: skip
+    first = worst = limit = decided = 0.0
+    if state > 0:
+        first, worst, _ = row_violations(g, n_decided, n_p)
+        bicycle_rollout(x_in, u, dt, n_sub, wheelbase, predicted)
+        lowest = predicted[1, 3]
+        for k in range(2, n_h + 1):
+            lowest = min(lowest, predicted[k, 3])
+        limit = max(0.0, vmin - lowest)
+        if n_decided:
+            low = g[0]
+            for r in range(1, n_decided):
+                low = min(low, g[r])
+            decided = max(0.0, -low)
+    return 0, it, state, cost, first, worst, limit, decided, u, predicted
 
 
 @njit(cache=True)

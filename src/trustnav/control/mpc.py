@@ -20,7 +20,7 @@ from trustnav.control._kernels import shift_plan
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
-from trustnav.control.models import Dynamics, SingleIntegrator
+from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
 from trustnav.control.problem import MpcConfig, MpcProblem, as_pedestrians, whole_step_kernel_loaded
 from trustnav.control.solvers import (
     FEAS_TOL,
@@ -42,7 +42,7 @@ _wall = time.perf_counter  # (``time`` is also an argument name of MpcController
 STATE_TOL = 1e-6  # tolerance on the model's hard state limits (bicycle: m/s below speed_min)
 
 
-@dataclass
+@dataclass(slots=True)
 class MpcSolution:
     """What one control step decided, and how. Every field describes the plan actually returned."""
 
@@ -100,9 +100,10 @@ class MpcController:
             self._yielder, self._road = Yielder(self.config.yielding), roads[0]
         # the whole step in one compiled call where it applies (see _whole_step)
         self._whole = (
-            isinstance(self.model, SingleIntegrator) and self.config.latency <= 0 and self._yielder is None
-            and not self.problem.n_user
+            type(self.model) in (SingleIntegrator, KinematicBicycle) and self.config.latency <= 0
+            and self._yielder is None and not self.problem.n_user
         )  # fmt: skip
+        self._state_shape = (self.model.nx,)
         self._warm_up()
         self.reset()
 
@@ -115,8 +116,8 @@ class MpcController:
         p.compiled_steps(p.initial_guess().copy(), 1, 1.0, PRIMAL_TOL, MERIT_WEIGHT)  # loads the compiled SQP loop
         if self._whole:  # and the whole step's
             one = np.zeros((1, 2))
-            p.whole_step(x, one + 1e3, one, np.zeros(1), p.initial_guess(), np.zeros(2), 1, 1.0, PRIMAL_TOL,
-                         MERIT_WEIGHT, 1, FEAS_TOL)  # fmt: skip
+            p.whole_step(x, one + 1e3, one, np.zeros(1), p.initial_guess(), np.zeros(self.model.nu), 1, 1.0,
+                         PRIMAL_TOL, MERIT_WEIGHT, 1, FEAS_TOL)  # fmt: skip
             p._whole_args = None
             whole_step_kernel_loaded()
         p._qp_structs = None  # no warm start from this stand-in problem
@@ -323,7 +324,7 @@ class MpcController:
             or type(state) is not np.ndarray
             or type(pedestrians) is not np.ndarray
             or type(trusts) is not np.ndarray
-            or state.shape != (2,)
+            or state.shape != self._state_shape
             or pedestrians.ndim != 2
             or trusts.ndim != 1
         ):
@@ -346,11 +347,15 @@ class MpcController:
         out = self.solver.solve_whole_step(self.problem, state, pedestrians, velocities, trusts, prev, last, deadline)
         if out is None:
             return None
-        iterations, _, first_row, worst, plan, predicted = out  # plan: fresh, the controller's own
+        iterations, _, first_row, worst, limit, decided, plan, predicted = out  # plan: fresh, the controller's own
         first = plan[0].copy()
         self._plan = plan
         self._last_control = first
-        self._sent(now, first)
+        issued = self._issued  # _sent with no latency: the newest command is the one acting
+        issued.append((now, first))
+        if len(issued) > 1:
+            issued.popleft()
+        self._clock = now + c.dt
         return MpcSolution(
             control=first.copy(),
             inputs=plan.copy(),
@@ -362,6 +367,8 @@ class MpcController:
             iterations=iterations,
             solve_time=_wall() - t0,
             first_row_violation=first_row,
+            decided_violation=decided,
+            state_violation=limit,
             detour=None if dl is None else dl.note,
         )
 

@@ -33,6 +33,7 @@ from trustnav.control import _qp
 from trustnav.control.barrier import TIMINGS, Barrier, PedestrianBarrier, Timing, cbf_rows
 from trustnav.control.costs import (
     Cost,
+    LaneStage,
     LaneTrackingCost,
     PositionTrackingCost,
     TrackingWeights,
@@ -447,9 +448,7 @@ class MpcProblem:
                 self.bu, self.g, *tail, max_it if full_steps is None else full_steps, merit_weight, np.empty_like(u),
             )  # fmt: skip
         else:
-            if self._constants is None:
-                fused(self, u)  # gathers the constants (the buffers are rebuilt below)
-            w, wheelbase, vmin, vmax, dt, n_sub = self._constants
+            w, wheelbase, vmin, vmax, dt, n_sub = self._bicycle_constants()
             st = self.stage
             it, state, cost, flag = _qp.bicycle_steps(
                 max_it, tol, merit_weight, u, seen, np.empty_like(u), self.x0, self.u_prev, st.points, st.yaw,
@@ -473,19 +472,23 @@ class MpcProblem:
         merit_weight: float,
         full_steps: int,
         feas_tol: float,
-    ) -> tuple[int, float, float, float, NDArray[np.float64], NDArray[np.float64]] | None:
-        """The step's data, the warm start from the previous plan ``prev`` and up to ``max_it`` SQP
-        iterations (as :meth:`compiled_steps`) in one compiled call
-        (:func:`~trustnav.control._qp.single_integrator_step`), for the common case: a single
-        integrator tracking a velocity (its bounded proportional reference), pedestrians of the
-        last step's number with R alone, no user barriers, the DAQP structures of the last step.
-        ``x``, ``peds``, ``vels``, ``tr``: C-contiguous float64 arrays of the right shapes (the
-        caller checks; values are checked here). Returns (iterations, cost, first-row violation,
-        worst violation, plan, predicted positions) when the loop converged to a plan whose rows
-        all hold within ``feas_tol``, the problem then holding the step's data as
-        :meth:`set_checked_stage` leaves it; else None, with DAQP's warm start as it was, so that
-        the general path runs (recovering, or refusing a bad input by name) exactly as without
-        this call."""
+        state_tol: float = 1e-6,
+    ) -> tuple[int, float, float, float, float, float, NDArray[np.float64], NDArray[np.float64]] | None:
+        """The step's data, the warm start from the previous plan ``prev`` (its last input held),
+        up to ``max_it`` SQP iterations (as :meth:`compiled_steps`), the exact check and the
+        predicted states in one compiled call for the common cases: a single integrator tracking a
+        velocity (:func:`~trustnav.control._qp.single_integrator_step`) or a kinematic bicycle
+        tracking a lane (:func:`~trustnav.control._qp.bicycle_step`), each with its bounded
+        proportional reference, pedestrians of the last step's number with R alone, no user
+        barriers, the DAQP structures of the last step. ``x``, ``peds``, ``vels``, ``tr``: float64
+        C arrays of the right shapes (the caller checks; values are checked here); ``u_prev`` the
+        last command (kept, not copied). Returns (iterations, cost, first-row violation, worst
+        violation, state-limit violation, violation of the rows the state decides, plan, predicted
+        states) when the loop converged to a plan whose rows all hold within ``feas_tol`` and that
+        keeps the model's state limits within ``state_tol``, the problem then holding the step's
+        data as :meth:`set_checked_stage` leaves it; else None, with DAQP's warm start as it was,
+        so that the general path runs (recovering, repairing, or refusing a bad input by name)
+        exactly as without this call."""
         qs, ck = self._qp_structs, self._whole_args
         n_p = self.n_p
         if not (
@@ -497,48 +500,88 @@ class MpcProblem:
                 return None
         if tr.shape[0] != n_p or not n_p or not self._plain_radii:
             return None
+        bicycle = ck[9]
         try:
-            out = _qp.single_integrator_step(x, peds, vels, tr, prev, max_it, *ck[6])
+            if bicycle:
+                out = _qp.bicycle_step(x, peds, vels, tr, prev, u_prev, max_it, *ck[6])
+            else:
+                out = _qp.single_integrator_step(x, peds, vels, tr, prev, max_it, *ck[6])
         except TypeError:  # not float64 C arrays of the right dimensions (no new compilation)
             return None
-        code, it, state, value, first, worst, u, predicted = out
-        if code != 0 or state <= 0 or worst > feas_tol:
+        if bicycle:
+            code, it, state, value, first, worst, limit, decided, u, predicted = out
+        else:
+            code, it, state, value, first, worst, u, predicted = out
+            limit = decided = 0.0
+        if code != 0 or state <= 0 or worst > feas_tol or limit > state_tol or decided > feas_tol:
             if code == 0:
                 qs.lam[:] = ck[7]
             return None
         self.vels, self.u_prev = vels, u_prev  # the controller's last command: never changed in place
         self.x0, self.origin, self.peds, self.one_minus_gamma, self.stage = ck[8]
-        return it, value, first, worst, u, predicted
+        return it, value, first, worst, limit, decided, u, predicted
 
     def _whole_arguments(self, max_it: int, tol: float, primal_tol: float, merit_weight: float, full_steps: int):
         """What :meth:`whole_step` passes to its compiled call besides the step's data, with what it
         was made from (the cost, the DAQP structures, R^2 and the QP buffers it points at, the
-        settings); None where the compiled step does not apply."""
+        settings), DAQP's saved working set, the step's data arrays (as the problem's attributes:
+        x0, origin, pedestrians, 1 - gamma, the cost's stage) and whether the model is the
+        bicycle; None where the compiled step does not apply."""
         cost, qs = self.cost, self._qp_structs
+        fused = self._fused
         if (
-            self._fused is not _fused_single_integrator
+            fused not in (_fused_single_integrator, _fused_bicycle)
             or self.n_user
-            or self.n_decided
-            or type(cost) is not VelocityTrackingCost
+            or type(cost) not in (VelocityTrackingCost, LaneTrackingCost)
             or type(cost.reference) is not BPReference
             or qs is None
             or not qs.holds(self.H, self.f, self.A, self.bu, self.bl)
             or qs.settings[0] != primal_tol
         ):
             return None
+        bicycle = fused is _fused_bicycle
+        if (bicycle and (cost.reference.mode == "hold" or not isinstance(cost, LaneTrackingCost))) or (
+            not bicycle and (self.n_decided or not isinstance(cost, VelocityTrackingCost))
+        ):
+            return None
         c, gp, r, goal = self.config, self.config.gamma, cost.reference, cost.goal
-        seen = np.empty((max(max_it, 64), self.n_h, 2))  # the loop's iterates: scratch here
-        # the step's data: written in place at every whole step (the general path makes new arrays)
-        stage = (np.empty(2), np.empty(2), np.empty((self.n_p, 2)), np.empty(self.n_p), np.empty((self.n_h, 2)))
+        n_h, nx = self.n_h, self.model.nx
+        seen = np.empty((max(max_it, 64), n_h, 2))  # the loop's iterates: scratch here
         lam0 = np.empty(qs.lam.shape[0])
-        args = (
-            *stage, np.empty((self.n_h, 2)), lam0, float(gp.gamma_ini), float(gp.delta), float(gp.lam),
-            float(goal[0]), float(goal[1]), float(r.gain), float(r.v_max), float(c.dt), r.mode == "rollout",
-            float(MAX_COORDINATE), float(tol), seen, self.r2, int(self.timing_code), int(self.n_decided), self.ulo,
-            self.uhi, self.xs, self.sens, self.f, self.A, self.bl, self.bu, self.g, *qs.tail, int(full_steps),
-            float(merit_weight),
-        )  # fmt: skip
-        return cost, qs, self.r2, self.f, seen.shape[0], (tol, primal_tol, merit_weight, full_steps), args, lam0, stage
+        gamma = (float(gp.gamma_ini), float(gp.delta), float(gp.lam))
+        # the step's data: written in place at every whole step (the general path makes new arrays)
+        data = [np.empty(nx), np.empty(2), np.empty((self.n_p, 2)), np.empty(self.n_p)]
+        if bicycle:
+            w, wheelbase, vmin, vmax, dt, n_sub = self._bicycle_constants()
+            pts, yaw, speed = np.empty((n_h + 1, 2)), np.empty(n_h + 1), np.empty(n_h + 1)
+            stage: Any = LaneStage(pts, yaw, speed)
+            args = (
+                *data, pts, yaw, speed, np.empty((n_h, 2)), np.empty((n_h, 2)), lam0, *gamma,
+                float(cost.start[0]), float(cost.start[1]), float(goal[0]), float(goal[1]), float(r.gain),
+                float(r.v_max), r.mode == "rollout", float(MAX_COORDINATE), float(tol), float(merit_weight), seen, w,
+                wheelbase, vmin, vmax, dt, int(n_sub), self.r2, int(self.timing_code), int(self.m_cbf),
+                int(self.n_decided), self.ulo, self.uhi, self.xs, self.sens, self.H, self.f, self.A, self.bl, self.bu,
+                self.g, *qs.tail,
+            )  # fmt: skip
+        else:
+            stage = np.empty((n_h, 2))
+            args = (
+                *data, stage, np.empty((n_h, 2)), lam0, *gamma, float(goal[0]), float(goal[1]), float(r.gain),
+                float(r.v_max), float(c.dt), r.mode == "rollout", float(MAX_COORDINATE), float(tol), seen, self.r2,
+                int(self.timing_code), int(self.n_decided), self.ulo, self.uhi, self.xs, self.sens, self.f, self.A,
+                self.bl, self.bu, self.g, *qs.tail, int(full_steps), float(merit_weight),
+            )  # fmt: skip
+        settings = (tol, primal_tol, merit_weight, full_steps)
+        return cost, qs, self.r2, self.f, seen.shape[0], settings, args, lam0, (*data, stage), bicycle
+
+    def _bicycle_constants(self) -> tuple:
+        """What the bicycle's fused kernels take from the frozen model and cost (gathered once)."""
+        if self._constants is None:
+            m: KinematicBicycle = self.model  # type: ignore[assignment]
+            c = self.config
+            self._constants = (self.cost.weights.as_array(), float(m.wheelbase), float(m.speed_min),
+                               float(m.speed_max), float(c.dt), m.substeps(c.dt))  # fmt: skip
+        return self._constants
 
     def _build_parts(self, u: NDArray[np.float64]) -> float:
         """:meth:`build` through the protocols: model sensitivities, cost, pedestrian rows,
@@ -690,9 +733,9 @@ def whole_step_kernel_loaded() -> None:
     """Once :meth:`MpcProblem.whole_step`'s compiled call is loaded, it compiles nothing more:
     inputs of other types (integers, views, another dimension) go to the general path, which
     converts or refuses them, instead of compiling a variant in the middle of a control loop."""
-    kernel = _qp.single_integrator_step
-    if kernel.signatures:
-        kernel.disable_compile()
+    for kernel in (_qp.single_integrator_step, _qp.bicycle_step):
+        if kernel.signatures:
+            kernel.disable_compile()
 
 
 def _fused_single_integrator(p: MpcProblem, u: NDArray[np.float64]) -> float:
@@ -705,14 +748,7 @@ def _fused_single_integrator(p: MpcProblem, u: NDArray[np.float64]) -> float:
 
 
 def _fused_bicycle(p: MpcProblem, u: NDArray[np.float64]) -> float:
-    constants = p._constants
-    if constants is None:  # the model's and cost's parameters are frozen: gathered once per problem
-        m: KinematicBicycle = p.model  # type: ignore[assignment]
-        c = p.config
-        constants = (p.cost.weights.as_array(), float(m.wheelbase), float(m.speed_min), float(m.speed_max),
-                     float(c.dt), m.substeps(c.dt))  # fmt: skip
-        p._constants = constants
-    w, wheelbase, vmin, vmax, dt, n_sub = constants
+    w, wheelbase, vmin, vmax, dt, n_sub = p._bicycle_constants()  # frozen: gathered once per problem
     st = p.stage
     return kern.bicycle_qp(
         p.x0, u, p.u_prev, st.points, st.yaw, st.speed, w, wheelbase, vmin, vmax, p.peds, p.vels,

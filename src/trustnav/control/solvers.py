@@ -547,13 +547,13 @@ class SqpSolver:
         prev: NDArray[np.float64],
         u_prev: NDArray[np.float64],
         deadline: float | None = None,
-    ) -> tuple[int, float, float, float, NDArray[np.float64], NDArray[np.float64]] | None:
+    ) -> tuple[int, float, float, float, float, float, NDArray[np.float64], NDArray[np.float64]] | None:
         """:meth:`MpcProblem.set_checked_stage`, the warm start from the previous plan ``prev``
         and :meth:`solve` in one compiled call (:meth:`MpcProblem.whole_step`) where the problem
         allows it and the compiled loop converges to a plan that passes its check, the common
         case: the result :meth:`solve` would give OPTIMAL, as (iterations, cost, first-row
-        violation, worst violation, plan, predicted positions). None: the caller takes the general
-        path, which runs as if this call had not."""
+        violation, worst violation, state-limit violation, decided rows' violation, plan, predicted
+        states). None: the caller takes the general path, which runs as if this call had not."""
         last = self._compiled_budget(p, None if deadline is None else time.perf_counter() + deadline)
         if last is None:
             return None
