@@ -153,6 +153,23 @@ def test_lane_cost_bicycle_controller_still_plans_within_bounds():
     assert np.allclose(sol.predicted_states, DynamicsModel.rollout(model, [0.0, 0.0, 0.0, 8.0], sol.inputs, 0.1))
 
 
+def _count_whole_steps(monkeypatch) -> list[bool]:
+    """Records, per call of MpcProblem.whole_step, whether it took the step (True) or handed it
+    to the general path."""
+    from trustnav.control.problem import MpcProblem
+
+    taken: list[bool] = []
+    original = MpcProblem.whole_step
+
+    def spy(self, *args):
+        out = original(self, *args)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(MpcProblem, "whole_step", spy)
+    return taken
+
+
 def _whole_loop(whole: bool, worlds, cfg, x0, steps_each):
     """Closed loop of a single-integrator controller over a sequence of worlds (pedestrians,
     velocities, trusts), with the whole-step path on or off; each step's full solution."""
@@ -176,7 +193,6 @@ def test_whole_step_is_the_general_step_bit_for_bit(monkeypatch):
     taken in most steps. Where it gives a step up (a recovery), DAQP's warm start is restored, so
     the general path's result is unchanged too."""
     from trustnav.control import _qp
-    from trustnav.control.problem import MpcProblem
 
     if not _qp.AVAILABLE:
         pytest.skip("DAQP's C API layout differs: the Python path is used")
@@ -186,15 +202,7 @@ def test_whole_step_is_the_general_step_bit_for_bit(monkeypatch):
     moving = rng.normal(0.0, 0.3, crowd.shape)
     worlds = [(crowd, 0 * moving, trusts), (crowd[:6], moving[:6], trusts[:6]), (crowd[6:], moving[6:], trusts[6:])]
     cfg = MpcConfig(horizon=20, dt=0.05, safety_radius=3.0, deterministic=True)
-    taken = []
-    original = MpcProblem.whole_step
-
-    def spy(self, *args):
-        out = original(self, *args)
-        taken.append(out is not None)
-        return out
-
-    monkeypatch.setattr(MpcProblem, "whole_step", spy)
+    taken = _count_whole_steps(monkeypatch)
     fast = _whole_loop(True, worlds, cfg, [20.0, 5.0], 40)
     assert sum(taken) >= 0.8 * len(fast) and not all(taken), "most steps whole, some handed to the general path"
     asked = len(taken)
@@ -255,7 +263,6 @@ def test_whole_bicycle_step_is_the_general_step_bit_for_bit(monkeypatch):
     closed loop on a lane with pedestrians stepping towards it (infeasible linearisations hand
     steps over); most steps take the whole call."""
     from trustnav.control import _qp
-    from trustnav.control.problem import MpcProblem
 
     if not _qp.AVAILABLE:
         pytest.skip("DAQP's C API layout differs: the Python path is used")
@@ -265,15 +272,7 @@ def test_whole_bicycle_step_is_the_general_step_bit_for_bit(monkeypatch):
     trusts = rng.uniform(0, 1, 10)
     cfg = MpcConfig(horizon=7, dt=0.1, safety_radius=2.5, deterministic=True)
     cost = LaneTrackingCost(start=(0, 0), goal=(100, 0), reference=BoundedProportionalReference(0.5, 8.0))
-    taken = []
-    original = MpcProblem.whole_step
-
-    def spy(self, *args):
-        out = original(self, *args)
-        taken.append(out is not None)
-        return out
-
-    monkeypatch.setattr(MpcProblem, "whole_step", spy)
+    taken = _count_whole_steps(monkeypatch)
     runs = []
     for whole in (True, False):
         ctl = MpcController(KinematicBicycle(), cost, cfg, SqpSolver())
