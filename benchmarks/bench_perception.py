@@ -26,7 +26,10 @@ realtime mode never reports, counted to the end of the clip), ``traits_within_0_
 (share of the person-frames found by both whose eye contact and phone use agree within 0.1),
 ``latency_ms_p95``, ``dropped`` and the load average during the run; the reference's row gives
 ``traits_frame_to_frame``, the same agreement between a track's consecutive reference frames (how
-steady the per-frame values are to begin with). The inputs: walk_a (640x480)
+steady the per-frame values are to begin with); ``trust_traits_within_0_1`` and
+``trust_within_0_1``, the same agreement for the eye-contact and smartphone trait values and the
+trust that a seconds-based ``TrustEstimator`` fed frame by frame gives each track (what the
+controller uses). The inputs: walk_a (640x480)
 and walk_a enlarged to 1280x720 (a dash-cam-sized stand-in: the shared data have no 1280x720 clip).
 """
 
@@ -35,6 +38,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -46,6 +50,7 @@ from trustnav.perception.looking import LookingModel
 from trustnav.perception.mediapipe_backend import MediaPipeConfig, MediaPipePoseBackend
 from trustnav.perception.pipeline import PerceptionPipeline
 from trustnav.perception.tracking import PersonTracker
+from trustnav.trust import SECONDS_TRUST, TrustEstimator
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
@@ -81,8 +86,18 @@ def run(name: str, paths: list[Path], video: bool, scan_frames: int, workers: in
     }
 
 
-def _people(out: list) -> list[dict]:
-    return [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone} for tp in out]
+def _people(out: list, estimator: TrustEstimator | None = None, t: float = 0.0) -> list[dict]:
+    """A frame's people as compared: box, per-frame cues and, with ``estimator`` (the trust
+    estimate fed frame by frame, as ``trustnav estimate`` does), each track's trait values and
+    trust after this frame."""
+    traits = {}
+    if estimator is not None:
+        tracks = estimator.update(PerceptionPipeline.observations(out, t), t)
+        traits = {i: (st.eye, st.smartphone, st.trust) for i, st in tracks.items()}
+    nan3 = (math.nan, math.nan, math.nan)
+    return [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone,
+             **dict(zip(("eye_trait", "phone_trait", "trust"), traits.get(tp.track_id, nan3), strict=True))}
+            for tp in out]  # fmt: skip
 
 
 def run_reference(frames: list, fps: float, model: LookingModel) -> tuple[list[list[dict]], float]:
@@ -93,7 +108,8 @@ def run_reference(frames: list, fps: float, model: LookingModel) -> tuple[list[l
     backend.reset()
     pipeline.tracker = PersonTracker(fps=fps)
     t0 = time.perf_counter()
-    out = [_people(pipeline(f, time=i / fps)) for i, f in enumerate(frames)]
+    trust = TrustEstimator(SECONDS_TRUST)
+    out = [_people(pipeline(f, time=i / fps), trust, i / fps) for i, f in enumerate(frames)]
     seconds = time.perf_counter() - t0
     backend.close()
     return out, len(frames) / seconds
@@ -114,16 +130,17 @@ def run_realtime(frames: list, fps: float, model: LookingModel, max_latency: flo
     backend.reset()
     pipeline.tracker = PersonTracker(fps=fps)
     per_frame: list[list[dict] | None] = [None] * len(frames)
+    trust = TrustEstimator(SECONDS_TRUST)  # results arrive in capture order
     with StreamingPerceiver(pipeline, mode="realtime", max_latency=max_latency) as stream:
         start = time.perf_counter()
         for i, f in enumerate(frames):
             time.sleep(max(0.0, start + i / fps - time.perf_counter()))  # the camera's clock
             stream.submit(f, i / fps)
             for r in stream.poll():
-                per_frame[r.index] = _people(r.people)
+                per_frame[r.index] = _people(r.people, trust, r.capture_time)
         results = stream.drain(timeout=30.0)
         for r in results:
-            per_frame[r.index] = _people(r.people)
+            per_frame[r.index] = _people(r.people, trust, r.capture_time)
         wall = time.perf_counter() - start
         stats = stream.stats
     backend.close()
@@ -143,7 +160,7 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
     were counted, ``never_found`` how many of those the real-time mode never reported."""
     from trustnav.perception.types import box_iou
 
-    total = hit = agree = both = 0
+    total = hit = agree = both = agree_traits = both_traits = agree_trust = 0
     first_ref: dict[int, int] = {}
     first_rt: dict[int, int] = {}
     frames_of: dict[int, int] = {}
@@ -161,6 +178,12 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
             if all(np.isfinite(a) and np.isfinite(b) for a, b in pairs):
                 both += 1
                 agree += all(abs(a - b) <= 0.1 for a, b in pairs)
+            pairs = [(p.get("eye_trait", math.nan), best.get("eye_trait", math.nan)),
+                     (p.get("phone_trait", math.nan), best.get("phone_trait", math.nan))]  # fmt: skip
+            if all(np.isfinite(a) and np.isfinite(b) for a, b in pairs):
+                both_traits += 1
+                agree_traits += all(abs(a - b) <= 0.1 for a, b in pairs)
+                agree_trust += abs(p["trust"] - best["trust"]) <= 0.1
     settle = max(1, round(settle_s * fps))
     counted = [i for i, k in first_ref.items() if frames_of[i] >= settle and k <= len(reference) - settle]
     delays = [(first_rt.get(i, len(reference)) - first_ref[i]) / fps for i in counted]
@@ -168,7 +191,9 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
             "first_detection_s": max(delays, default=0.0),
             "first_detection_people": len(counted),
             "never_found": sum(i not in first_rt for i in counted),
-            "traits_within_0_1": agree / both if both else float("nan")}  # fmt: skip
+            "traits_within_0_1": agree / both if both else float("nan"),
+            "trust_traits_within_0_1": agree_traits / both_traits if both_traits else float("nan"),
+            "trust_within_0_1": agree_trust / both_traits if both_traits else float("nan")}  # fmt: skip
 
 
 def frame_to_frame_agreement(reference: list[list[dict]]) -> float:
@@ -212,7 +237,8 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
                          "stream_fps": args.stream_fps})  # fmt: skip
     cols = ["name", "size", "mode", "max_latency_s", "fps", "throughput_fps", "recall_vs_reference",
             "first_detection_s", "first_detection_people", "never_found", "traits_within_0_1",
-            "traits_frame_to_frame", "latency_ms_p95", "dropped", "load_avg"]  # fmt: skip
+            "traits_frame_to_frame", "trust_traits_within_0_1", "trust_within_0_1", "latency_ms_p95", "dropped",
+            "load_avg"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:
