@@ -259,6 +259,8 @@ def main() -> None:
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
     ap.add_argument("--json", help="write the rows to this file")
     args = ap.parse_args()
+    if any(not 0.0 <= b <= 10.0 for b in args.max_latency):
+        ap.error(f"--max-latency: seconds in [0, 10] (0: newest frame only), got {args.max_latency}")
     if not SHARED.is_dir():
         raise SystemExit(f"needs the shared data at {SHARED}")
     model = LookingModel.from_file()
