@@ -516,7 +516,8 @@ class MediaPipePoseBackend:
         # stage 3: the people the detector does not see, proposed by person segmentation
         if self.config.segment_search:
             t = time.perf_counter()
-            found = self._segment_search(frame, [res[3].bbox for res in results if res is not None], w, h)
+            known = [res[3].bbox for res in results if res is not None]
+            found = self._segment_search(frame, known, w, h, self._frame_index if self.video else None)
             busy["segmentation"] = (time.perf_counter() - t) * self.config.workers
             results += found
             scores += [SEGMENT_SCORE] * len(found)
@@ -535,19 +536,18 @@ class MediaPipePoseBackend:
         known: list[NDArray[np.float64]],
         w: int,
         h: int,
-        windows: list[tuple[int, int, int, int]] | None = None,
+        turn: int | None = None,
         run: Callable[[Callable[[_Graphs, Any], Any], list[Any]], list[Any]] | None = None,
     ) -> list[tuple]:
         """Landmark results (as the detector's) for the people that person segmentation proposes
-        and no box of ``known`` covers (:mod:`trustnav.perception.segment_search`). ``windows``:
-        the segmentation tiles (default: all, shared out over ``segment_frames`` in video mode);
+        and no box of ``known`` covers (:mod:`trustnav.perception.segment_search`). ``turn``: search
+        only that turn's share of the tiles (one in ``segment_frames``; None: all of them);
         ``run(fn, items)``: how the graphs are run (default: the backend's workers)."""
         run = run or self._map
-        if windows is None:
-            windows = segment_windows(h, w, self.config.segment_tile)
-            n = self.config.segment_frames
-            if self.video and n > 1:
-                windows = windows[self._frame_index % n :: n]
+        windows = segment_windows(h, w, self.config.segment_tile)
+        n = self.config.segment_frames
+        if turn is not None and n > 1:
+            windows = windows[turn % n :: n]
         mask = np.zeros((h, w), dtype=np.float32)
         for (x0, y0, x1, y1), m in zip(windows, run(lambda g, win: g.segment(frame, win), windows), strict=True):
             np.maximum(mask[y0:y1, x0:x1], m, out=mask[y0:y1, x0:x1])

@@ -41,7 +41,6 @@ from trustnav.perception.mediapipe_backend import (
     sharpened,
     tiles,
 )
-from trustnav.perception.segment_search import segment_windows
 from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = ["RealtimeConfig", "RealtimePoseBackend"]
@@ -186,13 +185,11 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             if out:
                 publish(out)
         if self.config.segment_search:  # the people the detector does not see (segment_search)
-            n = self.config.segment_frames  # a share of the segmentation tiles per search, in turn
-            windows = segment_windows(h, w, self.config.segment_tile)[self._segment_turn % n :: n]
-            self._segment_turn += 1
-            found = self._segment_search(
-                frame, [_region_box(r) for r in checked], w, h, windows,
+            found = self._segment_search(  # a share of the tiles per search, in turn
+                frame, [_region_box(r) for r in checked], w, h, self._segment_turn,
                 lambda fn, items: [fn(self._searcher, item) for item in items],
             )  # fmt: skip
+            self._segment_turn += 1
             if found:
                 publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
 
@@ -257,7 +254,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         t1 = time.perf_counter()
         people = self._follow(frame, index, groups, found, w, h)
         if index == 0 and self.config.segment_search:  # the first frame as the offline backend's
-            for res in self._segment_search(frame, [p.bbox for p in people], w, h):
+            for res in self._segment_search(frame, [p.bbox for p in people], w, h, turn=0):
                 self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], index))
                 people.append(res[3])
         self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
