@@ -24,7 +24,9 @@ reported on their own row and left out of the "all" row.
     python benchmarks/trust_eval.py --set phone_a --set street
     python benchmarks/trust_eval.py --json /tmp/trust_eval.json
     python benchmarks/trust_eval.py --estimate-arg=--face     # a non-default option of estimate
+    python benchmarks/trust_eval.py --jitter 3  # also on frames shifted by 1-2 px: the figures' spread
     python benchmarks/trust_eval.py --mp4       # also the frame sequences through an MP4 round trip
+                                                # (records kept: their count, and those of the same person)
 """
 
 from __future__ import annotations
@@ -51,6 +53,8 @@ DUPLICATE_IOU = 0.3
 DUPLICATE_INSIDE = 0.7
 IGNORE_INSIDE = 0.5
 THRESHOLD = 0.5
+#: Whole-pixel translations (dx, dy) of the frames tried by ``--jitter K`` (the first K).
+JITTER_SHIFTS = ((1, 0), (0, 1), (1, 1), (2, 0), (0, 2), (2, 2))
 
 
 # ---------------------------------------------------------------- geometry and matching
@@ -246,6 +250,21 @@ def video_records(records: Sequence[Mapping[str, Any]], folder: Path) -> list[di
     return [{**r, "frame": files[int(str(r["frame"]).rsplit("#", 1)[1])]} for r in records]
 
 
+def records_matched(
+    uncompressed: Sequence[Mapping[str, Any]], coded: Sequence[Mapping[str, Any]], thr: float = MATCH_IOU
+) -> int:
+    """How many records of the uncompressed frames have a record of the coded video on the same
+    frame with IoU >= ``thr`` (Hungarian assignment per frame): the same person kept, where the
+    plain record count would also count different people found instead."""
+    coded_by: dict[str, list[Sequence[float]]] = {}
+    for r in coded:
+        coded_by.setdefault(r["frame"], []).append(r["bbox"])
+    base_by: dict[str, list[Sequence[float]]] = {}
+    for r in uncompressed:
+        base_by.setdefault(r["frame"], []).append(r["bbox"])
+    return sum(len(match(coded_by.get(f, []), boxes, thr)) for f, boxes in base_by.items())
+
+
 def render_frames(labels: Mapping[str, Any], out: Path) -> Path:
     """Regenerates the rendered frames (recipe and seed in labels['recipe']) and checks their boxes."""
     import importlib.util
@@ -263,6 +282,49 @@ def render_frames(labels: Mapping[str, Any], out: Path) -> Path:
             if a["id"] != b["id"] or max(abs(u - v) for u, v in zip(a["bbox"], b["bbox"], strict=True)) > 1.0:
                 raise SystemExit(f"regenerated {name} differs from the labels ({a['id']}): renderer changed?")
     return out
+
+
+def shift_image(src: Path, dst: Path, dx: int, dy: int) -> None:
+    """``src`` translated by (dx, dy) whole pixels (edges repeated) and written to ``dst`` (PNG
+    lossless; JPEG at quality 100)."""
+    import cv2
+
+    img = cv2.imread(str(src), cv2.IMREAD_COLOR)
+    if img is None:
+        raise SystemExit(f"cannot read {src}")
+    h, w = img.shape[:2]
+    moved = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), borderMode=cv2.BORDER_REPLICATE)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(dst), moved, [cv2.IMWRITE_JPEG_QUALITY, 100])
+
+
+def shifted_inputs(inputs: Sequence[Path], out: Path, dx: int, dy: int) -> list[Path]:
+    """The inputs of a set (files, or a folder of frames) translated by (dx, dy) into ``out``,
+    with their names kept (so that the labels, shifted by :func:`shifted_labels`, apply)."""
+    moved = []
+    for path in inputs:
+        if path.is_dir():
+            for f in _frame_files(path):
+                shift_image(f, out / path.name / f.name, dx, dy)
+            moved.append(out / path.name)
+        else:
+            shift_image(path, out / path.name, dx, dy)
+            moved.append(out / path.name)
+    return moved
+
+
+def shifted_labels(labels: Mapping[str, Any], dx: int, dy: int) -> dict[str, Any]:
+    """A set's labels with every box and ignore region translated by (dx, dy) pixels."""
+
+    def move(box: Sequence[float]) -> list[float]:
+        return [max(0.0, box[0] + dx), max(0.0, box[1] + dy), box[2] + dx, box[3] + dy]
+
+    frames = {
+        name: {**frame, "people": [{**p, "bbox": move(p["bbox"])} for p in frame["people"]],
+               "ignore": [move(r) for r in frame.get("ignore", [])]}
+        for name, frame in labels["frames"].items()
+    }  # fmt: skip
+    return {**labels, "frames": frames}
 
 
 def run_estimate(inputs: Sequence[Path], out: Path, extra: Sequence[str] = ()) -> list[dict[str, Any]]:
@@ -329,6 +391,32 @@ def print_table(results: Mapping[str, Mapping[str, Any]], tuned: Mapping[str, st
         print("(held-out sets are not in 'all': nothing was tuned on them; they are reported on their own)")
 
 
+def _figures(r: Mapping[str, Any]) -> dict[str, float | None]:
+    return {"recall": r["recall"], "false": r["false_boxes"], "dup": r["duplicates"],
+            "phone P": r["phone"]["precision"], "phone R": r["phone"]["recall"],
+            "eye P": r["eye_contact"]["precision"], "eye R": r["eye_contact"]["recall"]}  # fmt: skip
+
+
+def print_spread(results: Mapping[str, Mapping[str, Any]], spread: Sequence[Mapping[str, Any]]) -> None:
+    """The figures of the unshifted run and of each shifted run, and their range (``--jitter``)."""
+    rows = [("none", total(results), [r for r in results.values() if r.get("held_out")])]
+    rows += [(f"({s['shift_px'][0]}, {s['shift_px'][1]}) px", s["all"],
+              [r for r in s["sets"].values() if r.get("held_out")]) for s in spread]  # fmt: skip
+    keys = list(_figures(rows[0][1]))
+    print()
+    print("Sensitivity to whole-pixel shifts of the frames (sets in 'all'; MP4 rows not included):")
+    print("| shift | " + " | ".join(keys) + " |")
+    print("|" + "|".join("---" for _ in range(len(keys) + 1)) + "|")
+    values: dict[str, list[float]] = {k: [] for k in keys}
+    for label, r, _ in rows:
+        fig = _figures(r)
+        for k, v in fig.items():
+            if v is not None:
+                values[k].append(float(v))
+        print(f"| {label} | " + " | ".join("-" if fig[k] is None else f"{fig[k]:.2f}" for k in keys) + " |")
+    print("| range | " + " | ".join(f"{min(v):.2f}-{max(v):.2f}" if v else "-" for v in values.values()) + " |")
+
+
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="trust_eval.py",
@@ -355,13 +443,26 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "people kept under mild video compression",
     )
     parser.add_argument("--keep", type=Path, help="keep the estimate outputs (and rendered frames) in this folder")
+    parser.add_argument(
+        "--jitter",
+        type=int,
+        default=0,
+        metavar="K",
+        help="also run every set on its frames translated by K small whole-pixel shifts (1-2 px; labels shifted "
+        "alike) and print the spread of the figures: how much of a difference between two settings is the "
+        "pipeline's own sensitivity to where a person falls on the pixel grid (default 0: off)",
+    )
     return parser.parse_args(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
+    if not 0 <= args.jitter <= len(JITTER_SHIFTS):
+        raise SystemExit(f"--jitter must be 0-{len(JITTER_SHIFTS)} shifts, got {args.jitter}")
     sets = args.sets or list(SETS)
     results, tuned = {}, {}
+    spread: list[dict[str, Any]] = []
+    inputs: dict[str, list[Path]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         for name in sets:
@@ -369,7 +470,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             if labels.get("needs_shared", True) and not SHARED.is_dir():
                 raise SystemExit(f"set {name} needs the shared data at {SHARED}")
             print(f"{name}: running trustnav estimate ...", file=sys.stderr)
-            records = run_estimate(inputs_of(name, labels, work), work / f"estimate_{name}", args.extra)
+            inputs[name] = inputs_of(name, labels, work)
+            records = run_estimate(inputs[name], work / f"estimate_{name}", args.extra)
             results[name] = {**evaluate(labels, records), "held_out": bool(labels.get("held_out"))}
             tuned[name] = labels["tuned_on"]
             if args.mp4 and labels.get("input") == "folder":
@@ -380,12 +482,29 @@ def main(argv: Sequence[str] | None = None) -> None:
                 key = f"{name} mp4"
                 results[key] = {**evaluate(labels, coded), "psnr_db": round(psnr, 2),
                                 "records": len(coded), "records_uncompressed": len(records)}  # fmt: skip
+                same = records_matched(records, coded)
                 results[key]["records_kept"] = round(len(coded) / max(1, len(records)), 3)
-                tuned[key] = f"{labels['tuned_on']}; MP4 round trip, {len(coded)} of {len(records)} records kept"
+                results[key]["records_matched"] = same
+                results[key]["records_matched_share"] = round(same / max(1, len(records)), 3)
+                tuned[key] = (f"{labels['tuned_on']}; MP4 round trip, {len(coded)} of {len(records)} records kept, "
+                              f"{same} of them the same person (IoU >= {MATCH_IOU})")  # fmt: skip
+        for dx, dy in JITTER_SHIFTS[: args.jitter]:
+            shifted = {}
+            for name in sets:
+                labels = shifted_labels(load_labels(name), dx, dy)
+                print(f"{name} shifted by ({dx}, {dy}) px: running trustnav estimate ...", file=sys.stderr)
+                moved = shifted_inputs(inputs[name], work / f"shift_{dx}_{dy}", dx, dy)
+                records = run_estimate(moved, work / f"estimate_{name}_shift_{dx}_{dy}", args.extra)
+                shifted[name] = {**evaluate(labels, records), "held_out": bool(labels.get("held_out"))}
+            spread.append({"shift_px": [dx, dy], "sets": shifted, "all": total(shifted)})
     print_table(results, tuned)
+    if spread:
+        print_spread(results, spread)
     if args.json:
         out = {"sets": results, "all": total(results), "tuned_on": tuned,
                "settings": {"match_iou": MATCH_IOU, "threshold": THRESHOLD, "estimate_args": args.extra}}  # fmt: skip
+        if spread:
+            out["jitter"] = spread
         args.json.write_text(json.dumps(out, indent=1))
 
 

@@ -146,6 +146,47 @@ def test_mp4_round_trip_reports_psnr_and_maps_frames_back(tmp_path):
     assert [r["frame"] for r in mapped] == ["f_002.png", "f_000.png"] and mapped[0]["bbox"] == [1, 2, 3, 4]
 
 
+def test_records_matched_counts_the_same_person_not_the_record_count():
+    base = [{"frame": "a", "bbox": [0, 0, 10, 20]}, {"frame": "a", "bbox": [50, 0, 60, 20]},
+            {"frame": "b", "bbox": [0, 0, 10, 20]}]  # fmt: skip
+    # the coded run finds as many records, but one is another person (far away) on frame a
+    coded = [{"frame": "a", "bbox": [1, 0, 11, 20]}, {"frame": "a", "bbox": [100, 0, 110, 20]},
+             {"frame": "b", "bbox": [0, 1, 10, 21]}]  # fmt: skip
+    assert te.records_matched(base, coded) == 2
+    assert te.records_matched(base, []) == 0
+    assert te.records_matched(base, base) == 3
+
+
+def test_shifted_frames_and_labels_move_together(tmp_path):
+    import cv2
+
+    img = np.zeros((40, 60, 3), np.uint8)
+    img[10:20, 5:15] = 255  # a white square at x 5-14, y 10-19
+    cv2.imwrite(str(tmp_path / "f.png"), img)
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), img)
+    moved = te.shifted_inputs([tmp_path / "f.png", folder], tmp_path / "out", 2, 1)
+    assert moved == [tmp_path / "out" / "f.png", tmp_path / "out" / "seq"]
+    for path in (moved[0], moved[1] / "a.png"):
+        out = cv2.imread(str(path))
+        ys, xs = np.nonzero(out[:, :, 0] > 128)
+        assert (xs.min(), xs.max(), ys.min(), ys.max()) == (7, 16, 11, 20)  # moved by (2, 1), size kept
+        assert out.shape == img.shape
+    labels = {"set": "x", "frames": {"a.png": {"people": [{"id": "p", "bbox": [5, 10, 15, 20], "phone": True}],
+                                               "ignore": [[0, 0, 4, 4]]}}}  # fmt: skip
+    shifted = te.shifted_labels(labels, 2, 1)
+    assert shifted["frames"]["a.png"]["people"][0]["bbox"] == [7, 11, 17, 21]
+    assert shifted["frames"]["a.png"]["people"][0]["phone"] is True
+    assert shifted["frames"]["a.png"]["ignore"] == [[2, 1, 6, 5]]
+    assert labels["frames"]["a.png"]["people"][0]["bbox"] == [5, 10, 15, 20]  # the original is left alone
+
+
+def test_jitter_is_checked_before_anything_runs():
+    with pytest.raises(SystemExit, match="--jitter must be 0-6"):
+        te.main(["--jitter", "7", "--set", "street"])
+
+
 def test_held_out_sets_are_reported_apart_from_all():
     r = {"frames": 1, "people": 2, "found": 2, "detections": 2, "duplicates": 0, "false_boxes": 0,
          "ignored_boxes": 0, "id_switches": 0, "persons": 2,
