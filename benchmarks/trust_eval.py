@@ -17,8 +17,8 @@ as ``trustnav estimate INPUTS --out DIR`` does (the CLI itself, default settings
   the detection's ``phone`` / ``eye_contact`` >= 0.5 against the label: TP, FP, FN, TN, precision,
   recall, F1. A missing score (null) counts as a negative prediction.
 
-Held-out sets (``"held_out": true`` in their file: ``rendered_heldout``, nothing was tuned on it) are
-reported on their own row and left out of the "all" row.
+Held-out sets (``"held_out": true`` in their file: ``rendered_heldout`` and ``rendered_sequence``, a
+rendered video; nothing was tuned on them) are reported on their own rows and left out of the "all" row.
 
     python benchmarks/trust_eval.py                      # all sets, ~1 min on 2 cores
     python benchmarks/trust_eval.py --set phone_a --set street
@@ -47,7 +47,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 LABELS = ROOT / "benchmarks" / "data" / "labels"
-SETS = ("walk_a", "phone_a", "street", "rendered", "rendered_heldout")
+SETS = ("walk_a", "phone_a", "street", "rendered", "rendered_heldout", "rendered_sequence")
 MATCH_IOU = 0.5
 DUPLICATE_IOU = 0.3
 DUPLICATE_INSIDE = 0.7
@@ -205,6 +205,8 @@ def inputs_of(name: str, labels: Mapping[str, Any], cache: Path) -> list[Path]:
     ``recipe``, are regenerated)."""
     if labels.get("recipe"):
         folder = render_frames(labels, cache / name)
+        if labels.get("input") == "folder":
+            return [folder]  # one scene over time: one sequence
         return [folder / f for f in labels["frames"]]  # unrelated scenes: one sequence each
     base = (ROOT / labels["source"]).resolve()
     if base.is_dir() and labels.get("input") == "folder":
@@ -398,23 +400,30 @@ def _figures(r: Mapping[str, Any]) -> dict[str, float | None]:
 
 
 def print_spread(results: Mapping[str, Mapping[str, Any]], spread: Sequence[Mapping[str, Any]]) -> None:
-    """The figures of the unshifted run and of each shifted run, and their range (``--jitter``)."""
-    rows = [("none", total(results), [r for r in results.values() if r.get("held_out")])]
-    rows += [(f"({s['shift_px'][0]}, {s['shift_px'][1]}) px", s["all"],
-              [r for r in s["sets"].values() if r.get("held_out")]) for s in spread]  # fmt: skip
-    keys = list(_figures(rows[0][1]))
+    """The figures of the unshifted run and of each shifted run, and their range (``--jitter``):
+    for the sets in "all" together, and for each held-out set on its own."""
+    plain = {k: v for k, v in results.items() if "psnr_db" not in v}
+    groups: list[tuple[str, Any]] = []
+    if any(not v.get("held_out") for v in plain.values()):
+        groups.append(("all", total))
+    groups += [(name, lambda sets, n=name: sets[n]) for name, v in plain.items() if v.get("held_out")]
+    runs = [("none", plain)] + [(f"({s['shift_px'][0]}, {s['shift_px'][1]}) px", s["sets"]) for s in spread]
+    keys = list(_figures(next(iter(plain.values()))))
     print()
-    print("Sensitivity to whole-pixel shifts of the frames (sets in 'all'; MP4 rows not included):")
-    print("| shift | " + " | ".join(keys) + " |")
-    print("|" + "|".join("---" for _ in range(len(keys) + 1)) + "|")
-    values: dict[str, list[float]] = {k: [] for k in keys}
-    for label, r, _ in rows:
-        fig = _figures(r)
-        for k, v in fig.items():
-            if v is not None:
-                values[k].append(float(v))
-        print(f"| {label} | " + " | ".join("-" if fig[k] is None else f"{fig[k]:.2f}" for k in keys) + " |")
-    print("| range | " + " | ".join(f"{min(v):.2f}-{max(v):.2f}" if v else "-" for v in values.values()) + " |")
+    print("Sensitivity to whole-pixel shifts of the frames (MP4 rows not included):")
+    print("| set | shift | " + " | ".join(keys) + " |")
+    print("|" + "|".join("---" for _ in range(len(keys) + 2)) + "|")
+    for group, pick in groups:
+        values: dict[str, list[float]] = {k: [] for k in keys}
+        for label, sets in runs:
+            fig = _figures(pick(sets))
+            for k, v in fig.items():
+                if v is not None:
+                    values[k].append(float(v))
+            cells = " | ".join("-" if fig[k] is None else f"{fig[k]:.2f}" for k in keys)
+            print(f"| {group} | {label} | {cells} |")
+        ranges = " | ".join(f"{min(v):.2f}-{max(v):.2f}" if v else "-" for v in values.values())
+        print(f"| {group} | range | {ranges} |")
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:

@@ -32,8 +32,9 @@ te = _load_script()
 def test_label_files_load_and_are_self_consistent(name):
     labels = json.loads((LABELS / f"{name}.json").read_text())
     assert labels["set"] == name and labels["_doc"] and labels["tuned_on"] and labels["frames"]
-    assert ("not tuned on" in labels["tuned_on"]) == (name == "rendered_heldout")
-    assert bool(labels.get("held_out")) == (name == "rendered_heldout")
+    held_out = name in ("rendered_heldout", "rendered_sequence")
+    assert ("not tuned on" in labels["tuned_on"]) == held_out
+    assert bool(labels.get("held_out")) == held_out
     people = 0
     for frame, entry in labels["frames"].items():
         w, h = entry.get("image_size", labels.get("image_size"))
@@ -216,3 +217,27 @@ def test_held_out_recipe_differs_from_the_labelled_rendered_set():
         for p in f["people"]:
             role = next(r for r in mod.HELDOUT_ROLES if r[0] == p["id"])
             assert (p["phone"], p["eye_contact"]) == (role[3], role[4])  # truth from the scenario
+
+
+def test_rendered_sequence_is_one_scene_whose_truth_comes_from_its_roles():
+    """The held-out rendered video: one sequence (run as a folder), every person's phone and eye
+    contact from the role that drew them, the walker moving right and the texter left across the
+    view, the attentive man standing; hidden people are ignore regions, not labels."""
+    spec = importlib.util.spec_from_file_location("make_rendered", LABELS / "rendered" / "make_rendered.py")
+    assert spec is not None and spec.loader is not None
+    pytest.importorskip("pybullet")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    seq = json.loads((LABELS / "rendered_sequence.json").read_text())
+    assert seq["input"] == "folder" and not seq.get("independent_frames") and seq["recipe"]["variant"] == "sequence"
+    assert len(seq["frames"]) == seq["recipe"]["frames"] == 40
+    roles = {r[0]: r for r in mod.SEQUENCE_ROLES}
+    centre: dict[str, list[float]] = {}
+    for name in sorted(seq["frames"]):
+        for p in seq["frames"][name]["people"]:
+            assert (p["phone"], p["eye_contact"]) == (roles[p["id"]][3], roles[p["id"]][4])
+            centre.setdefault(p["id"], []).append((p["bbox"][0] + p["bbox"][2]) / 2)
+    assert centre["walker"][-1] - centre["walker"][0] > 200 and centre["texter"][-1] - centre["texter"][0] < -100
+    assert max(centre["attentive"]) - min(centre["attentive"]) < 5
+    hidden = [n for n, f in seq["frames"].items() if f["ignore"]]
+    assert hidden and all("texter" not in {p["id"] for p in seq["frames"][n]["people"]} for n in hidden)
