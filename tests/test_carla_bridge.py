@@ -705,8 +705,8 @@ def test_render_sensing_on_carla_takes_the_realtime_perceiver_when_asked(monkeyp
     built = []
     make = sensing.make_render_pipeline
 
-    def spy(sc, rate=None, realtime=False):
-        built.append(make(sc, rate, realtime=realtime))
+    def spy(sc, rate=None, realtime=False, search_seconds=None):
+        built.append(make(sc, rate, realtime=realtime, search_seconds=search_seconds))
         built[-1].backend.close = lambda *a, **k: closed.append(True)  # the run must close it
         return built[-1]
 

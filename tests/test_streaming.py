@@ -95,6 +95,48 @@ def test_realtime_backend_config_is_validated():
         RealtimeConfig(carry_frames=-1)
     with pytest.raises(ValueError, match="max_search_age"):
         RealtimeConfig(max_search_age=0)
+    for bad in (0, -2, 1.5, True):
+        with pytest.raises(ValueError, match="search_frames"):
+            RealtimeConfig(search_frames=bad)
+
+
+def test_modelled_search_spans_the_frames_of_its_seconds():
+    from trustnav.perception.realtime import modelled_search_frames
+
+    assert modelled_search_frames(10.0, 0.5) == 5
+    assert modelled_search_frames(15.0, 0.5) == 8  # 7.5 frames: handed over on the 8th
+    assert modelled_search_frames(10.0, 0.3) == 3 and modelled_search_frames(30.0, 0.01) == 1
+    for fps, secs in ((0.0, 0.5), (10.0, 0.0), (float("nan"), 0.5), (10.0, float("inf"))):
+        with pytest.raises(ValueError, match="positive"):
+            modelled_search_frames(fps, secs)
+
+
+@pytest.mark.slow
+def test_realtime_backend_in_step_is_deterministic_and_hands_over_after_its_frames(sequences, read_rgb):
+    """RealtimeConfig(search_frames=k): no search thread; a search starts on frames 1, 1 + k, ...,
+    what it finds arrives within its k frames (never before), and two runs over the same frames
+    give the same people to the bit."""
+    from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend
+
+    files = sorted((sequences / "walk_a").iterdir())[:10]
+    frames = [read_rgb(f) for f in files]
+    runs = []
+    for _ in range(2):
+        rt = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=3))
+        try:
+            due = []
+            out = []
+            for f in frames:
+                out.append([(p.bbox.tolist(), p.keypoints.tolist()) for p in rt(f)])
+                due.append(sorted(s.frame_index for _, s in rt._scheduled))
+            assert rt._thread is None and rt.stats["searches"] == 3  # frames 1, 4, 7
+            # after frame i, what is still to come is from searches started on frames i - 2 .. i
+            assert all(0 <= i - start < 3 for i, starts in enumerate(due) for start in starts)
+            assert any(due)
+        finally:
+            rt.close()
+        runs.append(out)
+    assert runs[0] == runs[1]
 
 
 @pytest.mark.slow
@@ -200,6 +242,45 @@ def test_render_drive_with_the_realtime_perceiver_reports_latency_per_frame():
     assert m["perception_ms_median"] is not None and m["perception_ms_p95"] >= m["perception_ms_median"]
     sensed = [s.person for f in r.frames for s in f.sensed]
     assert carried and sensed and not any(p.extra.get("predicted") for p in sensed)
+
+
+def test_drive_checks_the_modelled_search_time(capsys, tmp_path):
+    from trustnav.cli import main
+
+    out = str(tmp_path / "o")
+    argv = ["drive", "case-1", "--sensing", "render", "--rate", "10", "--search-seconds", "0.5", "--out", out]
+    assert main(argv) == 2
+    assert "--search-seconds models the real-time perceiver's search" in capsys.readouterr().err
+    for bad in ("0", "-1", "nan", "11"):
+        argv = ["drive", "case-1", "--sensing", "render", "--rate", "10", "--perception", "realtime",
+                "--search-seconds", bad, "--out", out]  # fmt: skip
+        assert main(argv) == 2
+        assert "--search-seconds must be in (0, 10] s" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_render_drive_with_a_modelled_search_is_reproducible():
+    """Case I at 10 frames/s, first 6 frames, real-time perception in step with the frames (search
+    modelled as 0.3 s): two drives give the same car and the same sensed people."""
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+    from trustnav.sim.driving.sensing import make_render_sensing
+
+    sc = load_drive_scenario("case-1")
+    results = []
+    for _ in range(2):
+        renderer, pipeline = make_render_sensing(sc, 10.0, realtime=True, search_seconds=0.3)
+        try:
+            r = run_drive(sc, sensing="render", renderer=renderer, pipeline=pipeline, capture_rate=10.0, max_frames=6)
+        finally:
+            renderer.close()
+            pipeline.backend.close()
+        assert pipeline.backend.realtime.search_frames == 3
+        results.append(r)
+    a, b = results
+    assert np.array_equal(a.ego, b.ego)
+    boxes = [[[s.person.bbox.tolist() for s in f.sensed] for f in r.frames] for r in results]
+    assert boxes[0] == boxes[1] and any(boxes[0])
 
 
 def test_estimate_refuses_realtime_perception_on_other_backends(tmp_path, capsys):

@@ -64,6 +64,7 @@ BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
     "v_max": (float, 0, 30, True, " m/s"),
     "duration": (float, 0, 600, True, " s"),
     "carla_fov": (float, 10, 170, False, " degrees"),
+    "search_seconds": (float, 0, 10, True, " s"),
 }
 
 
@@ -586,6 +587,7 @@ def _drive_runs(
     label: str = "",
     state: str = "perceived",
     perception: str = "offline",
+    search_seconds: float | None = None,
 ) -> list[tuple[str, dict, Path]]:
     """Run a driving case (a preset name, a scenario file or a DriveScenario; Case II: both variants
     unless one is asked for) and write its outputs.
@@ -601,7 +603,8 @@ def _drive_runs(
     def own_world(sc, att, progress):  # type: ignore[no-untyped-def]
         renderer = pipeline = None
         if sensing == "render":
-            renderer, pipeline = make_render_sensing(sc, rate, realtime=perception == "realtime")
+            renderer, pipeline = make_render_sensing(sc, rate, realtime=perception == "realtime",
+                                                     search_seconds=search_seconds)  # fmt: skip
         try:
             return run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
                              control_rate=control_rate, renderer=renderer, pipeline=pipeline,
@@ -717,6 +720,10 @@ def _walker_arg(v: str | None) -> int | str | None:
 
 
 def _drive(args: argparse.Namespace) -> int:
+    search = getattr(args, "search_seconds", None)
+    if search is not None and getattr(args, "perception", "offline") != "realtime":
+        raise ValueError("--search-seconds models the real-time perceiver's search: it needs --perception realtime")
+    check_bounds(args, "search_seconds")
     if getattr(args, "perception", "offline") == "realtime":
         if args.sensing != "render":
             raise ValueError("--perception realtime needs --sensing render (camera frames to perceive)")
@@ -751,7 +758,8 @@ def _drive(args: argparse.Namespace) -> int:
             done = _drive_runs(sc, args.sensing, args.attentive, args.seed, args.rate, folder.path,
                                video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
                                label=label, state=getattr(args, "state", "perceived"),
-                               perception=getattr(args, "perception", "offline"))  # fmt: skip
+                               perception=getattr(args, "perception", "offline"),
+                               search_seconds=getattr(args, "search_seconds", None))  # fmt: skip
         except errors as exc:
             folder.discard()
             print(f"trustnav: error: {exc}", file=sys.stderr)
@@ -1094,6 +1102,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render sensing: offline (default: every frame searched in full, deterministic) or "
                    "realtime (the search for new people beside the frame loop; results depend on machine "
                    "load; docs/perception.md)")  # fmt: skip
+    d.add_argument("--search-seconds", type=float, default=None, metavar="S",
+                   help="with --perception realtime: make the run deterministic, the search for new people "
+                   "run in step with the frames and its findings handed over as if it took S seconds, "
+                   f"{_range('search_seconds')} (the 2-core machine takes ~0.5; default: the search on its own "
+                   "thread, as fast as the machine allows)")  # fmt: skip
     g = d.add_mutually_exclusive_group()
     g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
                    help="every pedestrian attentive")  # fmt: skip

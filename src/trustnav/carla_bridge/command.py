@@ -70,7 +70,8 @@ def _run_variant(
         from trustnav.sim.driving.sensing import make_render_pipeline
 
         realtime = getattr(args, "perception", "offline") == "realtime"
-        pipeline = make_render_pipeline(sc, args.rate, realtime=realtime)
+        pipeline = make_render_pipeline(sc, args.rate, realtime=realtime,
+                                        search_seconds=getattr(args, "search_seconds", None))  # fmt: skip
 
     def report(session: Any) -> None:
         print(f"CARLA {session.server_version} at {options.address}, map {session.map_name}, "

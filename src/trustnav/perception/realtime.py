@@ -14,8 +14,11 @@ the two cores differently:
   of its last fits: its box and keypoints moved, its landmarks marked ``extra["predicted"]``.
 
 The first frame after :meth:`reset` is searched in full before it is answered, so a stream starts
-with everybody in view. ``stats`` reports the searches done and their mean duration: the time to
-first detection of a person who appears later is at most about two search durations.
+with everybody in view. With ``RealtimeConfig(search_frames=k)`` the search runs in step with the
+frames instead of on its own thread, its findings handed over as if it had taken k frames: the same
+behaviour, deterministic (simulated drives, tests), but not faster. ``stats`` reports the searches
+done and their mean duration: the time to first detection of a person who appears later is at most
+about two search durations.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from trustnav.perception.mediapipe_backend import (
 )
 from trustnav.perception.types import Person, box_iou, check_frame
 
-__all__ = ["RealtimeConfig", "RealtimePoseBackend"]
+__all__ = ["SEARCH_SECONDS", "RealtimeConfig", "RealtimePoseBackend", "modelled_search_frames"]
 
 
 @dataclass(frozen=True)
@@ -53,19 +56,44 @@ class RealtimeConfig:
     this many frames old are dropped (the person has moved too far for its region). carry_frames: a
     person whose fit fails (or lands on someone else) is carried by its velocity for up to this many
     frames beyond ``landmark_every``, long enough for the search to find it again; the carried
-    person's landmarks say ``extra["predicted"]``."""
+    person's landmarks say ``extra["predicted"]``. search_frames: None (default) runs the search on
+    its own thread, as fast as the machine allows (what it finds, and when, depends on the machine
+    and its load); an integer k makes the backend deterministic: the search runs in step with the
+    frame loop on the frame it starts from, and hands over what it found as if it had taken k
+    frames (its batches spread over them, the segmentation proposals last), the next search starting
+    when one ends; an episode is then a pure function of its frames (:func:`modelled_search_frames`
+    turns a search time into k)."""
 
     landmark_every: int = 2
     max_search_age: int = 15
     carry_frames: int = 8
+    search_frames: int | None = None
 
     def __post_init__(self) -> None:
+        if self.search_frames is not None and (
+            isinstance(self.search_frames, bool) or not isinstance(self.search_frames, int) or self.search_frames < 1
+        ):
+            raise ValueError(f"search_frames must be None (threaded) or an integer >= 1, got {self.search_frames!r}")
         if not isinstance(self.landmark_every, int) or not 1 <= self.landmark_every <= 10:
             raise ValueError(f"landmark_every must be an integer in [1, 10], got {self.landmark_every!r}")
         if not isinstance(self.carry_frames, int) or not 0 <= self.carry_frames <= 100:
             raise ValueError(f"carry_frames must be an integer in [0, 100], got {self.carry_frames!r}")
         if not isinstance(self.max_search_age, int) or self.max_search_age < 1:
             raise ValueError(f"max_search_age must be an integer >= 1, got {self.max_search_age!r}")
+
+
+#: Seconds a search of a whole frame takes on one core of the 2-core machine (the mean of
+#: ``RealtimePoseBackend.stats``: 0.35-0.5 s at 640x480, more at 1280x720), the default of
+#: :func:`modelled_search_frames`.
+SEARCH_SECONDS = 0.5
+
+
+def modelled_search_frames(fps: float, search_seconds: float = SEARCH_SECONDS) -> int:
+    """The frames a search of ``search_seconds`` spans in a stream of ``fps`` frames/s (at least 1):
+    ``RealtimeConfig.search_frames`` for a deterministic run."""
+    if not (math.isfinite(fps) and fps > 0 and math.isfinite(search_seconds) and search_seconds > 0):
+        raise ValueError(f"fps and search_seconds must be positive, got {fps!r} and {search_seconds!r}")
+    return max(1, math.ceil(search_seconds * fps - 1e-9))
 
 
 @dataclass
@@ -116,6 +144,10 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._searches: list[float] = []
         self._thread: threading.Thread | None = None
         self._segment_turn = 0  # which share of the segmentation tiles the next search takes
+        # deterministic mode (RealtimeConfig.search_frames): (frame index handed over at, _Search)
+        self._scheduled: list[tuple[int, _Search]] = []
+        self._next_search = 1  # the frame the next search starts from
+        self._previous: NDArray[np.uint8] | None = None  # the frame the last search started from
 
     # -- the search thread -------------------------------------------------------------------
 
@@ -202,6 +234,25 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             self._lock.notify_all()
         return found
 
+    def _in_step(self, index: int, frame: NDArray[np.uint8], known: list[NDArray[np.float64]]) -> list[_Search]:
+        """Deterministic mode: start a search on this frame if the last one has ended (run here,
+        in the frame loop), and take what is due by this frame."""
+        k = self.realtime.search_frames
+        assert k is not None
+        if index >= self._next_search:
+            batches: list[list] = []
+            t0 = time.perf_counter()
+            self._search(frame, known, self._previous, batches.append)
+            self._searches.append(time.perf_counter() - t0)
+            for j, people in enumerate(batches):  # spread over the search's frames, in order
+                due = index + math.ceil((j + 1) * k / len(batches))
+                self._scheduled.append((due, _Search(index, (due - index) / k, people)))
+            self._previous = frame
+            self._next_search = index + k
+        due = [s for at, s in self._scheduled if at <= index]
+        self._scheduled = [(at, s) for at, s in self._scheduled if at > index]
+        return due
+
     def _quiet_searcher(self) -> None:
         """Wait for a search under way to end and drop what it found (start of a stream)."""
         with self._lock:
@@ -216,6 +267,8 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         """Forget the people followed (call between streams)."""
         self._quiet_searcher()
         self._people = []
+        self._scheduled, self._next_search, self._previous = [], 1, None
+        self._segment_turn = 0
         super().reset()
 
     def close(self) -> None:
@@ -242,14 +295,16 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         index = self._frame_index
         t0 = time.perf_counter()
         known = [f.roi for f in self._people if f.fitted_at == index - 1]  # found last frame
+        deterministic = self.realtime.search_frames is not None
         if index == 0:
             self._quiet_searcher()
             groups = self.detect(sharpened(frame, self.config.sharpen, self.config.sharpen_sigma))
             found: list = []
-            self._start()  # the search thread starts on the next frame (this one is searched)
+            if not deterministic:
+                self._start()  # the search thread starts on the next frame (this one is searched)
         else:
             groups = []
-            searches = self._hand_over(index, frame, known)
+            searches = self._in_step(index, frame, known) if deterministic else self._hand_over(index, frame, known)
             found = [p for s in searches if index - s.frame_index <= self.realtime.max_search_age for p in s.people]
         t1 = time.perf_counter()
         people = self._follow(frame, index, groups, found, w, h)

@@ -363,32 +363,42 @@ class TrustTracker:
         return self.estimator.trust(index)
 
 
-def make_render_sensing(scenario: Any, capture_rate: float | None = None, realtime: bool = False) -> tuple[Any, Any]:
+def make_render_sensing(
+    scenario: Any, capture_rate: float | None = None, realtime: bool = False, search_seconds: float | None = None
+) -> tuple[Any, Any]:
     """(renderer, perception pipeline) for render sensing: PyBullet's CPU renderer of the scenario's
     street and :func:`make_render_pipeline`. Close the renderer and the backend when done."""
     from trustnav.sim.driving.render import PyBulletRenderer
 
-    return PyBulletRenderer(street_of(scenario)), make_render_pipeline(scenario, capture_rate, realtime)
+    pipeline = make_render_pipeline(scenario, capture_rate, realtime, search_seconds=search_seconds)
+    return PyBulletRenderer(street_of(scenario)), pipeline
 
 
-def make_render_pipeline(scenario: Any, capture_rate: float | None = None, realtime: bool = False) -> Any:
+def make_render_pipeline(
+    scenario: Any, capture_rate: float | None = None, realtime: bool = False, search_seconds: float | None = None
+) -> Any:
     """trustnav.perception for a drive's camera frames (trustnav's renders or CARLA's images):
     MediaPipe BlazePose, OC-SORT tracking at the capture rate, LOOKING, the phone classifier.
     BlazePose's video mode (following people from their landmarks between detections) only from
     5 frames/s: at 1 frame/s a car moves metres between frames and the follower left a stray box
     where a person had been. ``realtime``: the pose backend is
     :class:`~trustnav.perception.realtime.RealtimePoseBackend` (the search for new people runs
-    beside the frame loop; what it finds then depends on the machine's speed and load). Close the
-    backend when done."""
+    beside the frame loop; what it finds then depends on the machine's speed and load), or, with
+    ``search_seconds``, deterministic: the search runs in step with the frames and what it finds is
+    handed over as if it had taken that long (``RealtimeConfig.search_frames``). Close the backend
+    when done."""
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
     from trustnav.perception.pipeline import PerceptionPipeline
     from trustnav.perception.tracking import PersonTracker
 
     fps = float(capture_rate or scenario.camera.rate)
+    if search_seconds is not None and not realtime:
+        raise ValueError("search_seconds models the real-time backend's search: it needs realtime=True")
     if realtime:
-        from trustnav.perception.realtime import RealtimePoseBackend
+        from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend, modelled_search_frames
 
-        backend: Any = RealtimePoseBackend()
+        k = None if search_seconds is None else modelled_search_frames(fps, search_seconds)
+        backend: Any = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=k))
     else:
         backend = MediaPipePoseBackend(video=fps >= 5.0)
     return PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
