@@ -116,3 +116,31 @@ def test_text_overlays_give_no_boxes(sequences, read_rgb):
             for p in people:
                 for region in overlays:
                     assert _inside(p.bbox, region) < 0.5, f"box on an overlay: {p.bbox}"
+
+
+@pytest.mark.slow
+def test_a_followed_person_is_not_refitted_onto_a_neighbour(mediapipe_backend, sequences, read_rgb, monkeypatch):
+    """walk_a, frame 3: the landmark model finds no body in the region a followed person (the
+    middle one of three, centred at x 513) left; the detector then searches around it, where the
+    stronger detection is the neighbour's (x 441-475). Without the distance limit the follower
+    jumped onto the neighbour (and the person was dropped as a duplicate); with it, the person is
+    not refitted there (the real-time backend carries them; a search finds them again)."""
+    import math
+
+    from trustnav.perception import mediapipe_backend as mb
+
+    frame = read_rgb(sequences / "walk_a" / "image_00005313_0.png")
+    h, w = frame.shape[:2]
+    graphs = mediapipe_backend._all_graphs[0]
+    roi = np.array([[513.0, 207.0, 140.0, 0.0, np.nan, np.nan, np.nan]])
+
+    def refit() -> np.ndarray | None:
+        res = graphs.landmarks_or_redetect(frame, roi, lambda lm, r: mediapipe_backend._person(lm, 0.5, w, h, r))
+        return None if res is None else res[3].bbox
+
+    monkeypatch.setattr(mb, "REDETECT_MAX_SHIFT", math.inf)
+    jumped = refit()
+    assert jumped is not None and (jumped[0] + jumped[2]) / 2 < 480  # the neighbour, 55 px away
+    monkeypatch.setattr(mb, "REDETECT_MAX_SHIFT", 0.25)
+    kept = refit()
+    assert kept is None or abs((kept[0] + kept[2]) / 2 - 513.0) < 0.25 * 140.0

@@ -265,6 +265,11 @@ RETRY_MIN_PRESENCE = 0.95
 #: The overlap with another person's box at which a person found on a retried region is dropped.
 RETRY_MAX_IOU = 0.2
 
+#: How far (a share of its region's side) a followed person's detection may lie from where the
+#: person was when the landmark model lost it and the detector searches around it: beyond it, the
+#: detection is a neighbour's (the follower drifted onto the next person of a group).
+REDETECT_MAX_SHIFT = 0.25
+
 #: The detection score given to a person found from segmentation (no detector score exists).
 SEGMENT_SCORE = 0.5
 
@@ -389,7 +394,8 @@ class _Graphs:
     ) -> tuple | None:
         """Landmarks, next region, region used and person from a person's regions (see
         :meth:`landmarks_of_group`); if none and the person was followed from the previous frame (no
-        detection among its regions), search a window around it once more."""
+        detection among its regions), search a window around it once more, for a detection near
+        where it was and of its size (:data:`REDETECT_MAX_SHIFT`)."""
         res = self.landmarks_of_group(frame, rois, accept)
         if res is not None or np.isfinite(rois[:, 4]).any():
             return res
@@ -400,7 +406,13 @@ class _Graphs:
         x1, y1 = min(w, round(roi[0] + half)), min(h, round(roi[1] + half))
         if x1 - x0 < 16 or y1 - y0 < 16:
             return None
-        found = sorted(self.detect(frame, (x0, y0, x1, y1)), key=lambda r: -r[1])
+        # only a detection of this person: near where it was and of its size (the window also
+        # holds the neighbours of a group, whose detections are often the stronger ones)
+        found = [
+            (r, score) for r, score in self.detect(frame, (x0, y0, x1, y1))
+            if math.hypot(*(r[:2] - roi[:2])) <= REDETECT_MAX_SHIFT * roi[2] and 0.6 < r[2] / roi[2] < 1 / 0.6
+        ]  # fmt: skip
+        found.sort(key=lambda r: -r[1])
         if not found:
             return None
         return self.landmarks_of_group(frame, np.vstack([r for r, _ in found]), accept, tries=2)
