@@ -55,14 +55,19 @@ from trustnav.trust import SECONDS_TRUST, TrustEstimator
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
-def run(name: str, paths: list[Path], video: bool, scan_frames: int, workers: int, model: LookingModel) -> dict:
+def run(
+    name: str, paths: list[Path], video: bool, scan_frames: int, workers: int, model: LookingModel, body: bool = True
+) -> dict:
     frames = [f.frame for f in iter_frames(paths) if f.frame is not None]
-    backend = MediaPipePoseBackend(MediaPipeConfig(scan_frames=scan_frames, workers=workers), video=video)
+    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, body_search=body)
+    backend = MediaPipePoseBackend(config, video=video)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=10.0), model)
     pipeline(frames[0])  # warm-up (graph start-up), then start again
     backend.reset()
     pipeline.tracker = PersonTracker(fps=10.0)
-    stages: dict[str, list[float]] = {k: [] for k in ("detection", "landmarks", "segmentation", "traits", "tracking")}
+    stages: dict[str, list[float]] = {
+        k: [] for k in ("detection", "landmarks", "segmentation", "body", "traits", "tracking")
+    }
     totals, people = [], []
     for frame in frames:
         t0 = time.perf_counter()
@@ -78,6 +83,7 @@ def run(name: str, paths: list[Path], video: bool, scan_frames: int, workers: in
         "size": f"{w}x{h}",
         "mode": "video" if video else "still",
         "scan_frames": scan_frames,
+        "body_search": body,
         "frames": len(frames),
         "people_per_frame": float(np.mean(people)),
         **{f"{k}_ms": 1e3 * float(np.median(v)) for k, v in stages.items()},
@@ -284,6 +290,8 @@ def main() -> None:
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
+    ap.add_argument("--body-search", choices=("on", "off", "both"), default="on",
+                    help="the HOG body-shape search (MediaPipeConfig.body_search): on, off or both")  # fmt: skip
     ap.add_argument("--json", help="write the rows to this file")
     args = ap.parse_args()
     if any(not 0.0 <= b <= 10.0 for b in args.max_latency):
@@ -297,17 +305,19 @@ def main() -> None:
         realtime_main(args, model)
         return
     rows = []
-    for scan in args.scan_frames:
+    bodies = {"on": [True], "off": [False], "both": [False, True]}[args.body_search]
+    for scan, body in itertools.product(args.scan_frames, bodies):
         for seq in ("walk_a", "phone_a"):
             paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))
-            rows.append(run(seq, paths, True, scan, args.workers, model))
+            rows.append(run(seq, paths, True, scan, args.workers, model, body))
     if not args.skip_street:
         streets = sorted((SHARED / "data" / "street_images").glob("street_*.png"))
-        rows.append(run("street_*.png", streets, False, 1, args.workers, model))
-        rows.append(run("crossing.jpg", [SHARED / "data" / "street_images" / "crossing.jpg"] * 3, False, 1,
-                        args.workers, model))  # fmt: skip
-    cols = ["input", "size", "mode", "scan_frames", "frames", "people_per_frame", "detection_ms", "landmarks_ms",
-            "segmentation_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
+        for body in bodies:
+            rows.append(run("street_*.png", streets, False, 1, args.workers, model, body))
+            rows.append(run("crossing.jpg", [SHARED / "data" / "street_images" / "crossing.jpg"] * 3, False, 1,
+                            args.workers, model, body))  # fmt: skip
+    cols = ["input", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame", "detection_ms",
+            "landmarks_ms", "segmentation_ms", "body_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

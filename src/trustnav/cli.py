@@ -386,8 +386,10 @@ def _estimate(args: argparse.Namespace) -> int:
     if args.perception == "realtime" and (args.backend != "mediapipe" or args.scan_frames != 1):
         raise ValueError("--perception realtime runs on the mediapipe backend and searches on its own thread "
                          "(no --scan-frames)")  # fmt: skip
-    if args.backend != "mediapipe" and (args.sharpen or args.scan_frames != 1):
-        raise ValueError(f"--sharpen and --scan-frames apply to the mediapipe backend only, not {args.backend}")
+    if args.backend != "mediapipe" and (args.sharpen or args.scan_frames != 1 or args.no_body_search):
+        raise ValueError(
+            f"--sharpen, --scan-frames and --no-body-search apply to the mediapipe backend only, not {args.backend}"
+        )
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
     face = None
@@ -426,7 +428,9 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
     earlier = folder.has_earlier_outputs()
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
         out = folder.path
-        kwargs = {"scan_frames": args.scan_frames, "sharpen": args.sharpen} if args.backend == "mediapipe" else {}
+        kwargs = {}
+        if args.backend == "mediapipe":
+            kwargs = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search}
         backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime", **kwargs)
         face_fields = () if face is None else FACE_FIELDS  # --face: eye_contact_face, face_confidence
         sink = _RecordSink(out, face_fields + (() if ground is None else ground.FIELDS))
@@ -1055,6 +1059,9 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"mediapipe: unsharp mask for the person search, {_range('sharpen')} (default 0, off); 0.7 finds "
         "more people on soft or compressed video (MP4 at ~36 dB)",
     )
+    e.add_argument("--no-body-search", action="store_true",
+                   help="mediapipe: skip the HOG body-shape search for the people the pose detector misses (seen "
+                   "from behind, on compressed video); faster, finds fewer (docs/perception.md)")  # fmt: skip
     e.add_argument("--max-frames", type=int, help=f"stop after N frames, {_range('max_frames')} (any input)")
     e.add_argument("--max-seconds", type=float,
                    help=f"live input: stop after S seconds, {_range('max_seconds')} (default: when the stream ends "

@@ -33,6 +33,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.perception.body_search import (
+    MIN_PERSON_SHARE,
+    BodyDetector,
+    consistent,
+    person_share,
+    segment_square,
+    window_region,
+)
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
 from trustnav.perception.frames import quiet_stderr
 from trustnav.perception.segment_search import MIN_HEIGHT_PX as SEGMENT_MIN_HEIGHT_PX
@@ -174,6 +182,9 @@ class MediaPipeConfig:
     small) through person segmentation (:mod:`trustnav.perception.segment_search`): square tiles of
     ``segment_tile`` x the shorter side; in video mode the tiles are shared out over
     ``segment_frames`` consecutive frames (a person found is followed from its landmarks after).
+    body_search: also look for them by the shape of their body, with OpenCV's HOG people detector
+    (:mod:`trustnav.perception.body_search`; it survives video compression, which the detector's
+    face cue does not); in video mode on one frame in ``body_frames`` (or in ``scan_frames``, if more).
     """
 
     tile_fractions: tuple[float, ...] = (1.0, 0.5, 0.33)
@@ -194,14 +205,22 @@ class MediaPipeConfig:
     segment_search: bool = True
     segment_tile: float = 0.33
     segment_frames: int = 4
+    body_search: bool = True
+    body_frames: int = 2
 
     def __post_init__(self) -> None:
-        if not isinstance(self.segment_search, bool):
-            raise ValueError(f"segment_search must be True or False, got {self.segment_search!r}")
+        for name in ("segment_search", "body_search"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not 0.1 <= self.segment_tile <= 1.0:
             raise ValueError(f"segment_tile must be in [0.1, 1] (of the shorter side), got {self.segment_tile!r}")
-        if not isinstance(self.segment_frames, int) or self.segment_frames < 1:
-            raise ValueError(f"segment_frames must be an integer >= 1, got {self.segment_frames!r}")
+        for name in ("segment_frames", "body_frames"):
+            if (
+                isinstance(getattr(self, name), bool)
+                or not isinstance(getattr(self, name), int)
+                or getattr(self, name) < 1
+            ):
+                raise ValueError(f"{name} must be an integer >= 1, got {getattr(self, name)!r}")
         if len(self.box_pad) != 4 or any(not 0.0 <= v <= 0.5 for v in self.box_pad):
             raise ValueError(f"box_pad must be 4 margins (left, top, right, bottom) in [0, 0.5], got {self.box_pad!r}")
         if self.head_band is not None and not 0.0 <= self.head_band[0] < self.head_band[1] <= 1.0:
@@ -311,6 +330,13 @@ class _Graphs:
             self.detector.process({"image": blank})  # start the graphs now, quietly
             self.landmarker.process({"image": blank, "roi": self.rect(x_center=0.5, y_center=0.5, width=1, height=1)})
         self.segmenter: Any = None  # person segmentation, started on first use
+        self.body: BodyDetector | None = None  # HOG people detector, made on first use
+
+    def bodies(self, frame: NDArray[np.uint8]) -> list[NDArray[np.float64]]:
+        """Windows [x0, y0, x1, y1] that the HOG people detector takes for a person (:mod:`body_search`)."""
+        if self.body is None:
+            self.body = BodyDetector()
+        return self.body(frame)
 
     def segment(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> NDArray[np.float32]:
         """Person-pixel probabilities of one window of the frame (MediaPipe's selfie segmentation)."""
@@ -505,18 +531,26 @@ class MediaPipePoseBackend:
             kind, arg, score = job
             if kind == "detection":
                 out = g.detect(search, arg)
+            elif kind == "body":
+                out = g.bodies(frame)
             else:
                 out = g.landmarks_or_redetect(frame, arg, lambda lm, roi: self._person(lm, score, w, h, roi))
             return out, time.perf_counter() - t
 
         # stage 1: tiles through the detector, and the followed people through the landmark model
-        jobs = [("detection", win, 0.0) for win in windows]
+        every = max(self.config.body_frames, self.config.scan_frames)  # shared over frames as the tiles are
+        body = self.config.body_search and (not self.video or self._frame_index % every == 0)
+        # the body search first: its one long job runs on one worker while the others take the tiles
+        jobs = [("body", None, 0.0)] if body else []
+        jobs += [("detection", win, 0.0) for win in windows]
         jobs += [("landmarks", roi[None, :], score) for roi, score in followed]
         done = self._map(task, jobs)
+        busy["body"] = 0.0
         for (kind, _, _), (_, dt) in zip(jobs, done, strict=True):
             busy[kind] += dt
-        found = [region for out, _ in done[: len(windows)] for region in out]
-        results = [out for out, _ in done[len(windows) :]]
+        bodies = done[0][0] if body else []
+        found = [region for out, _ in done[int(body) : int(body) + len(windows)] for region in out]
+        results = [out for out, _ in done[len(jobs) - len(followed) :]]
         scores = [score for _, score in followed]
         # stage 2: landmarks for the people the detector found that are not followed already
         known = [res[1] for res in results if res is not None]
@@ -531,6 +565,14 @@ class MediaPipePoseBackend:
             known = [res[3].bbox for res in results if res is not None]
             found = self._segment_search(frame, known, w, h, self._frame_index if self.video else None)
             busy["segmentation"] = (time.perf_counter() - t) * self.config.workers
+            results += found
+            scores += [SEGMENT_SCORE] * len(found)
+        # stage 4: the people whose body shape the HOG detector found and nobody covers yet
+        if bodies:
+            t = time.perf_counter()
+            known = [res[3].bbox for res in results if res is not None]
+            found = self._body_search(frame, bodies, known, w, h)
+            busy["body"] += (time.perf_counter() - t) * self.config.workers
             results += found
             scores += [SEGMENT_SCORE] * len(found)
         # each result: (landmarks, region to follow next frame, region used, person)
@@ -577,6 +619,43 @@ class MediaPipePoseBackend:
             if person is None or not plausible(person.bbox, res[0], mask, blob):
                 return None
             person.extra["segmented"] = True
+            return (*res, person)
+
+        out: list[tuple] = []
+        for res in run(fit, proposals):
+            if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
+                out.append(res)
+        return out
+
+    def _body_search(
+        self,
+        frame: NDArray[np.uint8],
+        windows: list[NDArray[np.float64]],
+        known: list[NDArray[np.float64]],
+        w: int,
+        h: int,
+        run: Callable[[Callable[[_Graphs, Any], Any], list[Any]], list[Any]] | None = None,
+    ) -> list[tuple]:
+        """Landmark results (as the detector's) for the HOG people detector's ``windows`` that no box
+        of ``known`` covers, kept when the fit is of the person the window frames and made of person
+        pixels (:mod:`body_search`)."""
+        run = run or self._map
+        proposals = [
+            win for win in windows
+            if not any(_contains(box, _region_box(window_region(win)), share=0.6, min_area=0.0) for box in known)
+        ]  # fmt: skip
+
+        def fit(g: _Graphs, win: NDArray[np.float64]) -> tuple | None:
+            res = g.landmarks(frame, window_region(win))
+            if res is None:
+                return None
+            person = self._person(res[0], SEGMENT_SCORE, w, h, res[2])
+            if person is None or not consistent(person.bbox, res[0], win):
+                return None
+            square = segment_square(person.bbox, w, h)
+            if person_share(person.bbox, g.segment(frame, square), square) < MIN_PERSON_SHARE:
+                return None  # a body-like shape that is not made of person pixels (a sign, a pole)
+            person.extra["body"] = True
             return (*res, person)
 
         out: list[tuple] = []
@@ -683,8 +762,8 @@ def one_box_per_person(people: list[Person], iou: float) -> list[int]:
 
 
 def _secondary(p: Person) -> bool:
-    """Found only on a retried region or from segmentation: gives way to the detector's people."""
-    return bool(p.extra.get("retried", False) or p.extra.get("segmented", False))
+    """Found only on a retried region, from segmentation or from its body shape: gives way to the detector's people."""
+    return bool(p.extra.get("retried", False) or p.extra.get("segmented", False) or p.extra.get("body", False))
 
 
 def _region_box(roi: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -144,6 +144,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._searches: list[float] = []
         self._thread: threading.Thread | None = None
         self._segment_turn = 0  # which share of the segmentation tiles the next search takes
+        self._body_turn = 0  # searches started, for the body-shape search's turn
         # deterministic mode (RealtimeConfig.search_frames): (frame index handed over at, _Search)
         self._scheduled: list[tuple[int, _Search]] = []
         self._next_search = 1  # the frame the next search starts from
@@ -195,8 +196,9 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         batch of :data:`SEARCH_BATCH` windows, [(next region, score, person)], so that a person
         found early in a search is followed before the search ends. Windows are searched in order of
         :func:`search_order` (the whole frame, then where the image changed and its side edges);
-        then person segmentation proposes the people the detector does not see
-        (:mod:`~trustnav.perception.segment_search`), published at the end of the search."""
+        then the HOG body-shape search (:mod:`~trustnav.perception.body_search`) and person
+        segmentation (:mod:`~trustnav.perception.segment_search`) propose the people the detector
+        does not see, each published when it ends."""
         h, w = frame.shape[:2]
         search = sharpened(frame, self.config.sharpen, self.config.sharpen_sigma)
         windows = search_order(tiles(h, w, self.config), frame, previous)
@@ -216,10 +218,18 @@ class RealtimePoseBackend(MediaPipePoseBackend):
                     checked.append(res[1])
             if out:
                 publish(out)
+        on_searcher = lambda fn, items: [fn(self._searcher, item) for item in items]  # noqa: E731
+        self._body_turn += 1
+        if self.config.body_search and self._body_turn % self.config.body_frames == 1 % self.config.body_frames:
+            # the people found by their body's shape (body_search), on one search in body_frames
+            known = [_region_box(r) for r in checked]
+            found = self._body_search(frame, self._searcher.bodies(frame), known, w, h, on_searcher)
+            checked += [res[1] for res in found]
+            if found:
+                publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
         if self.config.segment_search:  # the people the detector does not see (segment_search)
             found = self._segment_search(  # a share of the tiles per search, in turn
-                frame, [_region_box(r) for r in checked], w, h, self._segment_turn,
-                lambda fn, items: [fn(self._searcher, item) for item in items],
+                frame, [_region_box(r) for r in checked], w, h, self._segment_turn, on_searcher
             )  # fmt: skip
             self._segment_turn += 1
             if found:
@@ -268,7 +278,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._quiet_searcher()
         self._people = []
         self._scheduled, self._next_search, self._previous = [], 1, None
-        self._segment_turn = 0
+        self._segment_turn = self._body_turn = 0
         super().reset()
 
     def close(self) -> None:
@@ -312,6 +322,14 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             for res in self._segment_search(frame, [p.bbox for p in people], w, h, turn=0):
                 self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], index))
                 people.append(res[3])
+        if index == 0 and self.config.body_search:
+            for res in self._body_search(frame, self._follower.bodies(frame), [p.bbox for p in people], w, h):
+                self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], index))
+                people.append(res[3])
+        if index == 0:  # one box per person, as the offline backend keeps
+            keep = one_box_per_person(people, self.config.duplicate_iou)
+            self._people = [self._people[i] for i in keep]
+            people = [people[i] for i in keep]
         self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
         self._frame_index += 1
         return people
