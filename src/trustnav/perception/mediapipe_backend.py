@@ -605,10 +605,8 @@ class MediaPipePoseBackend:
         mask = np.zeros((h, w), dtype=np.float32)
         for (x0, y0, x1, y1), m in zip(windows, run(lambda g, win: g.segment(frame, win), windows), strict=True):
             np.maximum(mask[y0:y1, x0:x1], m, out=mask[y0:y1, x0:x1])
-        proposals = [
-            (roi, blob) for roi, blob in blob_regions(mask, 0.85 * SEGMENT_MIN_HEIGHT_PX)
-            if not any(_contains(box, _region_box(roi), share=0.6, min_area=0.0) for box in known)
-        ]  # fmt: skip
+        regions = blob_regions(mask, 0.85 * SEGMENT_MIN_HEIGHT_PX)
+        proposals = [(roi, blob) for roi, blob in regions if not _covered(roi, known)]
 
         def fit(g: _Graphs, proposal: tuple) -> tuple | None:
             roi, blob = proposal
@@ -621,11 +619,7 @@ class MediaPipePoseBackend:
             person.extra["segmented"] = True
             return (*res, person)
 
-        out: list[tuple] = []
-        for res in run(fit, proposals):
-            if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
-                out.append(res)
-        return out
+        return _distinct(run(fit, proposals))
 
     def _body_search(
         self,
@@ -640,10 +634,7 @@ class MediaPipePoseBackend:
         of ``known`` covers, kept when the fit is of the person the window frames and made of person
         pixels (:mod:`body_search`)."""
         run = run or self._map
-        proposals = [
-            win for win in windows
-            if not any(_contains(box, _region_box(window_region(win)), share=0.6, min_area=0.0) for box in known)
-        ]  # fmt: skip
+        proposals = [win for win in windows if not _covered(window_region(win), known)]
 
         def fit(g: _Graphs, win: NDArray[np.float64]) -> tuple | None:
             res = g.landmarks(frame, window_region(win))
@@ -658,11 +649,7 @@ class MediaPipePoseBackend:
             person.extra["body"] = True
             return (*res, person)
 
-        out: list[tuple] = []
-        for res in run(fit, proposals):
-            if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
-                out.append(res)
-        return out
+        return _distinct(run(fit, proposals))
 
     def _person(self, lm: NDArray[np.float64], score: float, w: int, h: int, roi: NDArray) -> Person | None:
         body = lm[11:29]
@@ -764,6 +751,21 @@ def one_box_per_person(people: list[Person], iou: float) -> list[int]:
 def _secondary(p: Person) -> bool:
     """Found only on a retried region, from segmentation or from its body shape: gives way to the detector's people."""
     return bool(p.extra.get("retried", False) or p.extra.get("segmented", False) or p.extra.get("body", False))
+
+
+def _covered(roi: NDArray[np.float64], known: list[NDArray[np.float64]]) -> bool:
+    """A proposed region's person lies mostly (0.6) inside one of the ``known`` boxes: not tried."""
+    return any(_contains(box, _region_box(roi), share=0.6, min_area=0.0) for box in known)
+
+
+def _distinct(results: list[tuple | None]) -> list[tuple]:
+    """The proposals' landmark results that fitted, each on its own person (a later fit on a person
+    already fitted, :data:`RETRY_MAX_IOU`, is dropped)."""
+    out: list[tuple] = []
+    for res in results:
+        if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
+            out.append(res)
+    return out
 
 
 def _region_box(roi: NDArray[np.float64]) -> NDArray[np.float64]:
