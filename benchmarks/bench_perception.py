@@ -106,9 +106,9 @@ def _people(out: list, estimator: TrustEstimator | None = None, t: float = 0.0) 
             for tp in out]  # fmt: skip
 
 
-def run_reference(frames: list, fps: float, model: LookingModel) -> tuple[list[list[dict]], float]:
+def run_reference(frames: list, fps: float, model: LookingModel, body: bool = True) -> tuple[list[list[dict]], float]:
     """Every frame through the offline pipeline; per frame its people, and the frames per second."""
-    backend = MediaPipePoseBackend(video=True)
+    backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body), video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     pipeline(frames[0])  # warm-up, then start again
     backend.reset()
@@ -121,13 +121,15 @@ def run_reference(frames: list, fps: float, model: LookingModel) -> tuple[list[l
     return out, len(frames) / seconds
 
 
-def run_realtime(frames: list, fps: float, model: LookingModel, max_latency: float | None = None) -> dict:
+def run_realtime(
+    frames: list, fps: float, model: LookingModel, max_latency: float | None = None, body: bool = True
+) -> dict:
     """The realtime mode: a throughput pass (frames handed over as fast as it takes them), then a
     stream at ``fps`` through the StreamingPerceiver (newest frame first, drops counted)."""
     from trustnav.perception.realtime import RealtimePoseBackend
     from trustnav.perception.streaming import StreamingPerceiver
 
-    backend = RealtimePoseBackend()
+    backend = RealtimePoseBackend(MediaPipeConfig(body_search=body))
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     t0 = time.perf_counter()
     for i, f in enumerate(frames):
@@ -156,7 +158,7 @@ def run_realtime(frames: list, fps: float, model: LookingModel, max_latency: flo
             "searches": backend.stats["searches"], "search_mean_s": backend.stats["search_mean_s"]}  # fmt: skip
 
 
-def run_in_step(frames: list, fps: float, model: LookingModel, search_seconds: float) -> dict:
+def run_in_step(frames: list, fps: float, model: LookingModel, search_seconds: float, body: bool = True) -> dict:
     """The real-time design with its search in step with the frames (``RealtimeConfig.search_frames``):
     every frame processed, the search's findings handed over ``search_seconds`` of stream time after
     the frame it searched. What it misses against the reference is the design's (search latency,
@@ -164,7 +166,7 @@ def run_in_step(frames: list, fps: float, model: LookingModel, search_seconds: f
     from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend, modelled_search_frames
 
     k = modelled_search_frames(fps, search_seconds)
-    backend = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=k))
+    backend = RealtimePoseBackend(MediaPipeConfig(body_search=body), realtime=RealtimeConfig(search_frames=k))
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     trust = TrustEstimator(SECONDS_TRUST)
     t0 = time.perf_counter()
@@ -242,30 +244,32 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     walk = [f.frame for f in iter_frames(sorted((SHARED / "data" / "sequences" / "walk_a").glob("*.png")))]
     big = [np.ascontiguousarray(cv2.resize(f, (1280, 960), interpolation=cv2.INTER_CUBIC)[120:840]) for f in walk]
     rows = []
-    for name, frames in (("walk_a", walk), ("walk_a_1280x720", big)):
+    bodies = {"on": [True], "off": [False], "both": [False, True]}[args.body_search]
+    for (name, frames), body in itertools.product((("walk_a", walk), ("walk_a_1280x720", big)), bodies):
         load0 = os.getloadavg()[0]
-        reference, ref_fps = run_reference(frames, args.stream_fps, model)
+        reference, ref_fps = run_reference(frames, args.stream_fps, model, body)
         size = f"{frames[0].shape[1]}x{frames[0].shape[0]}"
-        rows.append({"name": name, "size": size, "mode": "reference", "fps": ref_fps,
+        rows.append({"name": name, "size": size, "body_search": body, "mode": "reference", "fps": ref_fps,
                      "traits_frame_to_frame": frame_to_frame_agreement(reference),
                      "load_avg": round(load0, 2)})  # fmt: skip
         for budget in args.max_latency:
             load0 = os.getloadavg()[0]
-            rt = run_realtime(frames, args.stream_fps, model, budget or None)
+            rt = run_realtime(frames, args.stream_fps, model, budget or None, body)
             load = round((load0 + os.getloadavg()[0]) / 2, 2)
-            rows.append({"name": name, "size": size, "mode": "realtime", "max_latency_s": budget, "fps": rt["fps"],
+            rows.append({"name": name, "size": size, "body_search": body, "mode": "realtime", "max_latency_s": budget,
+                         "fps": rt["fps"],
                          "throughput_fps": rt["throughput_fps"],
                          **compare(reference, rt["per_frame"], args.stream_fps),
                          "latency_ms_p95": rt["latency_ms_p95"], "dropped": rt["dropped"], "load_avg": load,
                          "searches": rt["searches"], "search_mean_s": rt["search_mean_s"],
                          "stream_fps": args.stream_fps})  # fmt: skip
         for secs in args.search_seconds:
-            st = run_in_step(frames, args.stream_fps, model, secs)
-            rows.append({"name": name, "size": size, "mode": "in-step", "search_s": secs,
+            st = run_in_step(frames, args.stream_fps, model, secs, body)
+            rows.append({"name": name, "size": size, "body_search": body, "mode": "in-step", "search_s": secs,
                          "search_frames": st["search_frames"], "compute_fps": st["compute_fps"],
                          **compare(reference, st["per_frame"], args.stream_fps),
                          "stream_fps": args.stream_fps})  # fmt: skip
-    cols = ["name", "size", "mode", "max_latency_s", "search_s", "fps", "throughput_fps", "compute_fps",
+    cols = ["name", "size", "body_search", "mode", "max_latency_s", "search_s", "fps", "throughput_fps", "compute_fps",
             "recall_vs_reference", "first_detection_s", "first_detection_people", "never_found", "traits_within_0_1",
             "traits_frame_to_frame", "trust_traits_within_0_1", "trust_within_0_1", "latency_ms_p95", "dropped",
             "load_avg"]  # fmt: skip

@@ -134,3 +134,15 @@ def test_estimate_refuses_no_body_search_on_other_backends(tmp_path, capsys):
 
     code = main(["estimate", str(tmp_path), "--out", str(tmp_path / "o"), "--no-body-search", "--backend", "yolo"])
     assert code == 2 and "--no-body-search apply to the mediapipe backend only" in capsys.readouterr().err
+
+
+def test_a_search_leaves_opencvs_thread_setting_as_it_was():
+    import cv2
+
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(2)
+        bs.BodyDetector()(np.zeros((480, 640, 3), dtype=np.uint8))
+        assert cv2.getNumThreads() == 2
+    finally:
+        cv2.setNumThreads(before)

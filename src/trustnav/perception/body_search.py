@@ -22,6 +22,7 @@ it finds on the labelled frames and walk_a's MP4 frames have 0.23-0.86.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,11 +59,16 @@ PERSON_SHARE = 0.75
 MIN_PERSON_SHARE = 0.2
 
 
+#: Held while a search runs with OpenCV's pool set to one thread (a setting of the whole process).
+_ONE_THREAD = threading.Lock()
+
+
 class BodyDetector:
     """OpenCV's HOG people detector, people from ``min_share`` x the frame's shorter side up; one
-    per thread. It runs on the calling thread only: OpenCV's own thread pool is set to one thread
-    (``cv2.setNumThreads(1)``, for the whole process), since trustnav's backends already keep every
-    core busy with their own workers and OpenCV's pool would take the core of the frame loop."""
+    per thread. A search runs on the calling thread only: OpenCV's own thread pool is set to one
+    thread for its duration and restored after (searches are serialised by a lock, since the setting
+    is the process's), because trustnav's backends already keep every core busy with their own
+    workers and OpenCV's pool would take the core of the frame loop."""
 
     def __init__(self, min_share: float = MIN_HEIGHT_SHARE) -> None:
         import cv2
@@ -75,7 +81,6 @@ class BodyDetector:
         if not (math.isfinite(min_share) and 0.02 <= min_share <= 1.0):
             raise ValueError(f"min_share must be in [0.02, 1] (of the frame's shorter side), got {min_share!r}")
         self.min_share = min_share
-        cv2.setNumThreads(1)
         self._hog = cv2.HOGDescriptor()
         self._hog.setSVMDetector(cv2.HOGDescriptor_getDefaultPeopleDetector())
 
@@ -89,8 +94,14 @@ class BodyDetector:
             return []  # smaller than one window: nobody to find (and OpenCV aborts on it)
         smooth = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
         big = cv2.resize(frame, None, fx=scale, fy=scale, interpolation=smooth)
-        rects, _ = self._hog.detectMultiScale(big, hitThreshold=0.0, winStride=(8, 8), padding=(8, 8),
-                                              scale=PYRAMID_STEP)  # fmt: skip
+        with _ONE_THREAD:
+            before = cv2.getNumThreads()
+            cv2.setNumThreads(1)
+            try:
+                rects, _ = self._hog.detectMultiScale(big, hitThreshold=0.0, winStride=(8, 8), padding=(8, 8),
+                                                      scale=PYRAMID_STEP)  # fmt: skip
+            finally:
+                cv2.setNumThreads(before)
         return [np.array([x, y, x + bw, y + bh], dtype=np.float64) / scale for x, y, bw, bh in rects]
 
 
