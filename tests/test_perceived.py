@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from trustnav.control import KinematicBicycle, LaneTrackingCost, MpcConfig, MpcController
@@ -24,6 +24,7 @@ from trustnav.sim.driving.world import load_drive_scenario, pedestrian_bodies, s
 
 
 @settings(max_examples=60, deadline=None)
+@example(pitch=-9.0, roll=0.0, yaw=0.0, ahead=2.0, side=0.0, height=-1.5)  # once 0.5 m ahead of the lens, below it
 @given(
     pitch=st.floats(-10, 10),
     roll=st.floats(-5, 5),
@@ -33,8 +34,10 @@ from trustnav.sim.driving.world import load_drive_scenario, pedestrian_bodies, s
     height=st.floats(-1.5, 1.0),
 )
 def test_project_then_back_project_returns_the_point(pitch, roll, yaw, ahead, side, height):
-    cam = CameraSpec(pitch_deg=pitch, roll_deg=roll).pose([3.0, -7.0], yaw)
+    spec = CameraSpec(pitch_deg=pitch, roll_deg=roll)
+    cam = spec.pose([3.0, -7.0], yaw)
     c, s = math.cos(yaw), math.sin(yaw)
+    ahead += spec.forward  # ahead of the camera (mounted ``forward`` m ahead of the car's reference point)
     p = np.array([[3.0 + ahead * c - side * s, -7.0 + ahead * s + side * c, height]])
     uv, depth = cam.project(p)
     assert depth[0] > 0
