@@ -238,13 +238,17 @@ def frame_to_frame_agreement(reference: list[list[dict]]) -> float:
     return agree / pairs if pairs else float("nan")
 
 
+#: --body-search: the MediaPipeConfig.body_search settings measured.
+BODY_SEARCH = {"on": [True], "off": [False], "both": [False, True]}
+
+
 def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     import cv2
 
     walk = [f.frame for f in iter_frames(sorted((SHARED / "data" / "sequences" / "walk_a").glob("*.png")))]
     big = [np.ascontiguousarray(cv2.resize(f, (1280, 960), interpolation=cv2.INTER_CUBIC)[120:840]) for f in walk]
     rows = []
-    bodies = {"on": [True], "off": [False], "both": [False, True]}[args.body_search]
+    bodies = BODY_SEARCH[args.body_search]
     for (name, frames), body in itertools.product((("walk_a", walk), ("walk_a_1280x720", big)), bodies):
         load0 = os.getloadavg()[0]
         reference, ref_fps = run_reference(frames, args.stream_fps, model, body)
@@ -294,7 +298,7 @@ def main() -> None:
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
-    ap.add_argument("--body-search", choices=("on", "off", "both"), default="on",
+    ap.add_argument("--body-search", choices=tuple(BODY_SEARCH), default="on",
                     help="the HOG body-shape search (MediaPipeConfig.body_search): on, off or both")  # fmt: skip
     ap.add_argument("--json", help="write the rows to this file")
     args = ap.parse_args()
@@ -309,7 +313,7 @@ def main() -> None:
         realtime_main(args, model)
         return
     rows = []
-    bodies = {"on": [True], "off": [False], "both": [False, True]}[args.body_search]
+    bodies = BODY_SEARCH[args.body_search]
     for scan, body in itertools.product(args.scan_frames, bodies):
         for seq in ("walk_a", "phone_a"):
             paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))

@@ -524,7 +524,7 @@ class MediaPipePoseBackend:
             k = self._frame_index % self.config.scan_frames
             windows = [windows[0]] + windows[1:][k :: self.config.scan_frames]
         followed = self._followed if self.video else []
-        busy = {"detection": 0.0, "landmarks": 0.0}
+        busy = {"detection": 0.0, "landmarks": 0.0, "body": 0.0}
 
         def task(g: _Graphs, job: tuple[str, Any, float]) -> tuple[Any, float]:
             t = time.perf_counter()
@@ -545,7 +545,6 @@ class MediaPipePoseBackend:
         jobs += [("detection", win, 0.0) for win in windows]
         jobs += [("landmarks", roi[None, :], score) for roi, score in followed]
         done = self._map(task, jobs)
-        busy["body"] = 0.0
         for (kind, _, _), (_, dt) in zip(jobs, done, strict=True):
             busy[kind] += dt
         bodies = done[0][0] if body else []

@@ -143,8 +143,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._people: list[_Followed] = []
         self._searches: list[float] = []
         self._thread: threading.Thread | None = None
-        self._segment_turn = 0  # which share of the segmentation tiles the next search takes
-        self._body_turn = 0  # searches started, for the body-shape search's turn
+        self._turn = 0  # searches started: which share of the segmentation tiles, whether the body search
         # deterministic mode (RealtimeConfig.search_frames): (frame index handed over at, _Search)
         self._scheduled: list[tuple[int, _Search]] = []
         self._next_search = 1  # the frame the next search starts from
@@ -219,8 +218,8 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             if out:
                 publish(out)
         on_searcher = lambda fn, items: [fn(self._searcher, item) for item in items]  # noqa: E731
-        self._body_turn += 1
-        if self.config.body_search and self._body_turn % self.config.body_frames == 1 % self.config.body_frames:
+        turn, self._turn = self._turn, self._turn + 1
+        if self.config.body_search and turn % self.config.body_frames == 0:
             # the people found by their body's shape (body_search), on one search in body_frames
             known = [_region_box(r) for r in checked]
             found = self._body_search(frame, self._searcher.bodies(frame), known, w, h, on_searcher)
@@ -229,9 +228,8 @@ class RealtimePoseBackend(MediaPipePoseBackend):
                 publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
         if self.config.segment_search:  # the people the detector does not see (segment_search)
             found = self._segment_search(  # a share of the tiles per search, in turn
-                frame, [_region_box(r) for r in checked], w, h, self._segment_turn, on_searcher
+                frame, [_region_box(r) for r in checked], w, h, turn, on_searcher
             )  # fmt: skip
-            self._segment_turn += 1
             if found:
                 publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
 
@@ -278,7 +276,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._quiet_searcher()
         self._people = []
         self._scheduled, self._next_search, self._previous = [], 1, None
-        self._segment_turn = self._body_turn = 0
+        self._turn = 0
         super().reset()
 
     def close(self) -> None:
@@ -318,21 +316,27 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             found = [p for s in searches if index - s.frame_index <= self.realtime.max_search_age for p in s.people]
         t1 = time.perf_counter()
         people = self._follow(frame, index, groups, found, w, h)
-        if index == 0 and self.config.segment_search:  # the first frame as the offline backend's
-            for res in self._segment_search(frame, [p.bbox for p in people], w, h, turn=0):
-                self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], index))
-                people.append(res[3])
-        if index == 0 and self.config.body_search:
-            for res in self._body_search(frame, self._follower.bodies(frame), [p.bbox for p in people], w, h):
-                self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], index))
-                people.append(res[3])
-        if index == 0:  # one box per person, as the offline backend keeps
-            keep = one_box_per_person(people, self.config.duplicate_iou)
-            self._people = [self._people[i] for i in keep]
-            people = [people[i] for i in keep]
+        if index == 0:
+            people = self._first_proposals(frame, people, w, h)
         self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
         self._frame_index += 1
         return people
+
+    def _first_proposals(self, frame: NDArray[np.uint8], people: list[Person], w: int, h: int) -> list[Person]:
+        """The first frame as the offline backend's: the people segmentation and the body-shape
+        search propose beside the detector's, then one box per person (followed from then on)."""
+        searches = []
+        if self.config.segment_search:
+            searches.append(lambda known: self._segment_search(frame, known, w, h, turn=0))
+        if self.config.body_search:
+            searches.append(lambda known: self._body_search(frame, self._follower.bodies(frame), known, w, h))
+        for search in searches:
+            for res in search([p.bbox for p in people]):
+                self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], 0))
+                people.append(res[3])
+        keep = one_box_per_person(people, self.config.duplicate_iou)
+        self._people = [self._people[i] for i in keep]
+        return [people[i] for i in keep]
 
     def _fit(self, frame: NDArray[np.uint8], rois: NDArray[np.float64], score: float, w: int, h: int) -> tuple | None:
         return self._follower.landmarks_or_redetect(frame, rois, lambda lm, roi: self._person(lm, score, w, h, roi))
