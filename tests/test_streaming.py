@@ -140,6 +140,30 @@ def test_realtime_backend_in_step_is_deterministic_and_hands_over_after_its_fram
 
 
 @pytest.mark.slow
+def test_realtime_frame_loop_does_not_refit_lost_people_on_tried_regions(sequences, read_rgb, monkeypatch):
+    """The offline backend refits a lost followed person on FOLLOW_TRIES' regions; the real-time
+    frame loop does not (no time for two more landmark calls per lost person: it carries them)."""
+    from trustnav.perception import mediapipe_backend as mb
+    from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend
+
+    calls: list = []
+    original = mb._Graphs.landmarks_or_redetect
+
+    def spy(self, frame, rois, accept, tries=None):
+        calls.append(tries)
+        return original(self, frame, rois, accept, tries)
+
+    monkeypatch.setattr(mb._Graphs, "landmarks_or_redetect", spy)
+    rt = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=3))
+    try:
+        for f in sorted((sequences / "walk_a").iterdir())[:6]:
+            rt(read_rgb(f))
+    finally:
+        rt.close()
+    assert calls and all(tries == () for tries in calls)
+
+
+@pytest.mark.slow
 def test_realtime_backend_answers_first_frame_in_full_then_follows_and_stops(sequences, read_rgb):
     """The first frame is searched in full (everyone the offline backend finds on it); later frames
     are answered without waiting for a search; close() stops the search thread."""

@@ -284,6 +284,19 @@ RETRY_MIN_PRESENCE = 0.95
 #: The overlap with another person's box at which a person found on a retried region is dropped.
 RETRY_MAX_IOU = 0.2
 
+#: Regions tried on a followed person whose region from the previous frame gives no accepted fit,
+#: before the detector searches around it: (side as a share of that region's, shift towards the
+#: feet as a share of its side). Through video compression the landmark model's person flag flips
+#: with the region's placement by a few pixels (walk_a through MP4: a 77 px man fitted on a region
+#: 0.1 of its side higher and 1.1 x larger, or 1.25 x larger, not on the region itself), and the
+#: followed person was lost until the detector or the body search found them again. A person fitted
+#: on one of them is marked ``refollowed``: it gives way to the detector's people and does not stop a
+#: detection from being fitted (on a fast walker the tried region can still hold where she was).
+FOLLOW_TRIES = ((1.1, -0.1), (1.25, 0.0))
+#: Widest box (a share of its height) a fit on one of :data:`FOLLOW_TRIES` may have: a larger square
+#: can fit one body on two people walking side by side (walk_a: 64 x 94 px on a couple).
+REFOLLOW_MAX_WIDTH = 0.6
+
 #: How far (a share of its region's side) a followed person's detection may lie from where the
 #: person was when the landmark model lost it and the detector searches around it: beyond it, the
 #: detection is a neighbour's (the follower drifted onto the next person of a group).
@@ -416,17 +429,34 @@ class _Graphs:
         return lm, np.r_[nxt, np.nan, np.nan, np.nan], roi
 
     def landmarks_or_redetect(
-        self, frame: NDArray[np.uint8], rois: NDArray[np.float64], accept: Accept
+        self,
+        frame: NDArray[np.uint8],
+        rois: NDArray[np.float64],
+        accept: Accept,
+        tries: tuple[tuple[float, float], ...] | None = None,
     ) -> tuple | None:
         """Landmarks, next region, region used and person from a person's regions (see
         :meth:`landmarks_of_group`); if none and the person was followed from the previous frame (no
-        detection among its regions), search a window around it once more, for a detection near
-        where it was and of its size (:data:`REDETECT_MAX_SHIFT`)."""
+        detection among its regions), first the regions of ``tries`` (default :data:`FOLLOW_TRIES`)
+        around it, then a search of a window around it, for a detection near where it was and of its
+        size (:data:`REDETECT_MAX_SHIFT`)."""
         res = self.landmarks_of_group(frame, rois, accept)
         if res is not None or np.isfinite(rois[:, 4]).any():
             return res
-        h, w = frame.shape[:2]
         roi = rois[0]
+        for scale, shift in FOLLOW_TRIES if tries is None else tries:
+            tried = roi.copy()
+            tried[2] *= scale
+            tried[:2] += shift * roi[2] * np.array([math.sin(roi[3]), math.cos(roi[3])])
+            res = self._accepted(frame, tried, accept)
+            if res is None:
+                continue
+            x0, y0, x1, y1 = res[3].bbox
+            if float(np.mean(res[0][11:29, 4])) < RETRY_MIN_PRESENCE or x1 - x0 > REFOLLOW_MAX_WIDTH * (y1 - y0):
+                continue  # not one clear person: a larger square can take in a neighbour too
+            res[3].extra["refollowed"] = (scale, shift)
+            return res
+        h, w = frame.shape[:2]
         half = 0.75 * roi[2]
         x0, y0 = max(0, round(roi[0] - half)), max(0, round(roi[1] - half))
         x1, y1 = min(w, round(roi[0] + half)), min(h, round(roi[1] + half))
@@ -552,7 +582,8 @@ class MediaPipePoseBackend:
         results = [out for out, _ in done[len(jobs) - len(followed) :]]
         scores = [score for _, score in followed]
         # stage 2: landmarks for the people the detector found that are not followed already
-        known = [res[1] for res in results if res is not None]
+        # (a person refitted on a tried region does not stop a detection there: the two may differ)
+        known = [res[1] for res in results if res is not None and "refollowed" not in res[3].extra]
         groups = [g for g in _merge_regions(found) if not any(_same_region(g[0][0], k) for k in known)]
         for out, dt in self._map(lambda g, grp: task(g, ("landmarks", grp[0], grp[1])), groups):
             busy["landmarks"] += dt
@@ -748,8 +779,9 @@ def one_box_per_person(people: list[Person], iou: float) -> list[int]:
 
 
 def _secondary(p: Person) -> bool:
-    """Found only on a retried region, from segmentation or from its body shape: gives way to the detector's people."""
-    return bool(p.extra.get("retried", False) or p.extra.get("segmented", False) or p.extra.get("body", False))
+    """Found only on a retried or refollowed region, from segmentation or from its body shape: gives way to
+    the detector's people."""
+    return any(p.extra.get(key, False) for key in ("retried", "refollowed", "segmented", "body"))
 
 
 def _covered(roi: NDArray[np.float64], known: list[NDArray[np.float64]]) -> bool:

@@ -339,7 +339,12 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         return [people[i] for i in keep]
 
     def _fit(self, frame: NDArray[np.uint8], rois: NDArray[np.float64], score: float, w: int, h: int) -> tuple | None:
-        return self._follower.landmarks_or_redetect(frame, rois, lambda lm, roi: self._person(lm, score, w, h, roi))
+        # no refit on tried regions (FOLLOW_TRIES) here: the frame loop has no time for two more landmark
+        # calls per lost person, and it carries a lost person until a search finds them again
+        def accept(lm: NDArray[np.float64], roi: NDArray[np.float64]) -> Person | None:
+            return self._person(lm, score, w, h, roi)
+
+        return self._follower.landmarks_or_redetect(frame, rois, accept, tries=())
 
     def _follow(self, frame: NDArray[np.uint8], index: int, groups: list, found: list, w: int, h: int) -> list[Person]:
         """Fit (or carry) the people followed, fit the regions of ``groups`` (the first frame's
