@@ -288,7 +288,7 @@ RETRY_MAX_IOU = 0.2
 #: before the detector searches around it: (side as a share of that region's, shift towards the
 #: feet as a share of its side). Through video compression the landmark model's person flag flips
 #: with the region's placement by a few pixels (walk_a through MP4: a 77 px man fitted on a region
-#: 0.1 of its side higher and 1.1 x larger, or 1.25 x larger, not on the region itself), and the
+#: 0.1 of its side higher and 1.1 x larger, or 1.25 x larger, not on the one centred on him), and the
 #: followed person was lost until the detector or the body search found them again. A person fitted
 #: on one of them is marked ``refollowed``: it gives way to the detector's people and does not stop a
 #: detection from being fitted (on a fast walker the tried region can still hold where she was).
