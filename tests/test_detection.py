@@ -151,8 +151,7 @@ def test_a_followed_person_is_not_refitted_onto_a_neighbour(mediapipe_backend, s
 def _followed_result(box, presence: float) -> tuple:
     lm = np.zeros((33, 5))
     lm[:, 4] = presence
-    person = Person(bbox=np.array(box, float), keypoints=np.zeros((17, 2)), confidences=np.ones(17), score=0.5)
-    return lm, None, None, person
+    return lm, None, None, _person(box, nose=((box[0] + box[2]) / 2, box[1] + 5), score=0.5)
 
 
 def test_a_lost_followed_person_is_refitted_only_as_one_clear_person(monkeypatch):

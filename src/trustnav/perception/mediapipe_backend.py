@@ -25,7 +25,7 @@ import os
 import queue
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -392,13 +392,34 @@ class _Graphs:
                 return out
         if not np.isfinite(rois[0, 4]):
             return None  # a region followed from landmarks: nothing to retry
-        for scale in RETRY_SCALES:
-            roi = rois[0].copy()
-            roi[2] *= scale
-            out = self._accepted(frame, roi, accept)
-            if out is not None and float(np.mean(out[0][11:29, 4])) >= RETRY_MIN_PRESENCE:
-                out[3].extra["retried"] = True
-                return out
+        found = self._refit(frame, rois[0], accept, [(scale, 0.0) for scale in RETRY_SCALES])
+        if found is None:
+            return None
+        found[0][3].extra["retried"] = True
+        return found[0]
+
+    def _refit(
+        self,
+        frame: NDArray[np.uint8],
+        roi: NDArray[np.float64],
+        accept: Accept,
+        tries: Sequence[tuple[float, float]],
+        max_width: float = math.inf,
+    ) -> tuple[tuple, tuple[float, float]] | None:
+        """The first fit, and its (scale, shift), on ``roi`` with its side times ``scale`` and moved
+        toward the feet by ``shift`` x its side, for each of ``tries``, that ``accept`` takes with a mean
+        body presence >= :data:`RETRY_MIN_PRESENCE` and a box no wider than ``max_width`` x its height:
+        a region the first fit failed on gives a body only if the model is sure of it."""
+        for scale, shift in tries:
+            tried = roi.copy()
+            tried[2] *= scale
+            tried[:2] += shift * roi[2] * np.array([math.sin(roi[3]), math.cos(roi[3])])
+            out = self._accepted(frame, tried, accept)
+            if out is None:
+                continue
+            x0, y0, x1, y1 = out[3].bbox
+            if _presence(out[0]) >= RETRY_MIN_PRESENCE and x1 - x0 <= max_width * (y1 - y0):
+                return out, (scale, shift)
         return None
 
     def _accepted(self, frame: NDArray[np.uint8], roi: NDArray[np.float64], accept: Accept) -> tuple | None:
@@ -444,18 +465,11 @@ class _Graphs:
         if res is not None or np.isfinite(rois[:, 4]).any():
             return res
         roi = rois[0]
-        for scale, shift in FOLLOW_TRIES if tries is None else tries:
-            tried = roi.copy()
-            tried[2] *= scale
-            tried[:2] += shift * roi[2] * np.array([math.sin(roi[3]), math.cos(roi[3])])
-            res = self._accepted(frame, tried, accept)
-            if res is None:
-                continue
-            x0, y0, x1, y1 = res[3].bbox
-            if float(np.mean(res[0][11:29, 4])) < RETRY_MIN_PRESENCE or x1 - x0 > REFOLLOW_MAX_WIDTH * (y1 - y0):
-                continue  # not one clear person: a larger square can take in a neighbour too
-            res[3].extra["refollowed"] = (scale, shift)
-            return res
+        # not one clear person on a larger square: it can take in a neighbour too
+        found = self._refit(frame, roi, accept, FOLLOW_TRIES if tries is None else tries, REFOLLOW_MAX_WIDTH)
+        if found is not None:
+            found[0][3].extra["refollowed"] = found[1]
+            return found[0]
         h, w = frame.shape[:2]
         half = 0.75 * roi[2]
         x0, y0 = max(0, round(roi[0] - half)), max(0, round(roi[1] - half))
@@ -641,7 +655,7 @@ class MediaPipePoseBackend:
         def fit(g: _Graphs, proposal: tuple) -> tuple | None:
             roi, blob = proposal
             res = g.landmarks(frame, roi)
-            if res is None or float(np.mean(res[0][11:29, 4])) < SEGMENT_MIN_PRESENCE:
+            if res is None or _presence(res[0]) < SEGMENT_MIN_PRESENCE:
                 return None
             person = self._person(res[0], SEGMENT_SCORE, w, h, res[2])
             if person is None or not plausible(person.bbox, res[0], mask, blob):
@@ -682,8 +696,7 @@ class MediaPipePoseBackend:
         return _distinct(run(fit, proposals))
 
     def _person(self, lm: NDArray[np.float64], score: float, w: int, h: int, roi: NDArray) -> Person | None:
-        body = lm[11:29]
-        presence = float(np.mean(body[:, 4]))
+        presence = _presence(lm)
         if presence < self.config.min_presence:
             return None
         # the landmark model must find the body where the region put it (hips near the region's
@@ -713,6 +726,11 @@ class MediaPipePoseBackend:
             score=float(min(1.0, score)) * presence,
             extra={"blazepose": lm},
         )
+
+
+def _presence(lm: NDArray[np.float64]) -> float:
+    """Mean presence of the body's landmarks (shoulders to feet, 11-28) of a BlazePose fit."""
+    return float(np.mean(lm[11:29, 4]))
 
 
 def sharpened(frame: NDArray[np.uint8], amount: float, sigma: float) -> NDArray[np.uint8]:
