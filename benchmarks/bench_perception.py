@@ -19,14 +19,19 @@ waiting while younger than S seconds). Rows (``--json``): ``name``, ``max_latenc
 ``mode`` (reference | realtime), ``fps`` (frames processed per second of wall time; for the
 realtime mode also ``throughput_fps``, frames per second when handed over as fast as it takes
 them), ``recall_vs_reference`` (share of the reference's person-frames the realtime mode also
-reports, box IoU >= 0.5; a dropped frame reports nobody), ``first_detection_s`` (worst delay, in
+reports, box IoU >= 0.5; a dropped frame reports nobody; ``recall_clear``: the same over the reference's
+people >= 80 px tall), ``first_detection_s`` (worst delay, in
 stream seconds, from a person's first reference detection to the realtime mode's, over the people
 the reference follows for >= 0.5 s and finds >= 0.5 s before the end; ``never_found`` of them the
 realtime mode never reports, counted to the end of the clip), ``traits_within_0_1``
 (share of the person-frames found by both whose eye contact and phone use agree within 0.1),
 ``latency_ms_p95``, ``dropped`` and the load average during the run; the reference's row gives
 ``traits_frame_to_frame``, the same agreement between a track's consecutive reference frames (how
-steady the per-frame values are to begin with); ``trust_traits_within_0_1`` and
+steady the per-frame values are to begin with) and ``reference_new_share``, the share of its
+person-frames whose track it did not report on the frame before (people it finds anew, which any
+search that hands over a frame or more later misses unless a carried box covers them); ``--search-seconds``
+adds in-step rows (the search in the frame loop, handed over after that much stream time; no frame
+dropped, nothing load-dependent), one per ``--landmark-every``; ``trust_traits_within_0_1`` and
 ``trust_within_0_1``, the same agreement for the eye-contact and smartphone trait values and the
 trust that a seconds-based ``TrustEstimator`` fed frame by frame gives each track (what the
 controller uses). The inputs: walk_a (640x480)
@@ -158,15 +163,19 @@ def run_realtime(
             "searches": backend.stats["searches"], "search_mean_s": backend.stats["search_mean_s"]}  # fmt: skip
 
 
-def run_in_step(frames: list, fps: float, model: LookingModel, search_seconds: float, body: bool = True) -> dict:
+def run_in_step(
+    frames: list, fps: float, model: LookingModel, search_seconds: float, body: bool = True, landmark_every: int = 2
+) -> dict:
     """The real-time design with its search in step with the frames (``RealtimeConfig.search_frames``):
     every frame processed, the search's findings handed over ``search_seconds`` of stream time after
-    the frame it searched. What it misses against the reference is the design's (search latency,
-    following, carrying), not the machine's: no frame is dropped and nothing depends on load."""
+    the frame it searched, each followed person fitted on one frame in ``landmark_every``. What it
+    misses against the reference is the design's (search latency, following, carrying), not the
+    machine's: no frame is dropped and nothing depends on load."""
     from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend, modelled_search_frames
 
     k = modelled_search_frames(fps, search_seconds)
-    backend = RealtimePoseBackend(MediaPipeConfig(body_search=body), realtime=RealtimeConfig(search_frames=k))
+    realtime = RealtimeConfig(search_frames=k, landmark_every=landmark_every)
+    backend = RealtimePoseBackend(MediaPipeConfig(body_search=body), realtime=realtime)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     trust = TrustEstimator(SECONDS_TRUST)
     t0 = time.perf_counter()
@@ -186,19 +195,22 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
     were counted, ``never_found`` how many of those the real-time mode never reported."""
     from trustnav.perception.types import box_iou
 
-    total = hit = agree = both = agree_traits = both_traits = agree_trust = 0
+    total = hit = agree = both = agree_traits = both_traits = agree_trust = clear = clear_hit = 0
     first_ref: dict[int, int] = {}
     first_rt: dict[int, int] = {}
     frames_of: dict[int, int] = {}
     for k, (ref, rt) in enumerate(zip(reference, realtime, strict=True)):
         for p in ref:
             total += 1
+            is_clear = p["bbox"][3] - p["bbox"][1] >= CLEAR_PX
+            clear += is_clear
             first_ref.setdefault(p["id"], k)
             frames_of[p["id"]] = frames_of.get(p["id"], 0) + 1
             best = max(rt or [], key=lambda q: box_iou(p["bbox"], q["bbox"]), default=None)
             if best is None or box_iou(p["bbox"], best["bbox"]) < 0.5:
                 continue
             hit += 1
+            clear_hit += is_clear
             first_rt.setdefault(p["id"], k)
             pairs = [(p["eye"], best["eye"]), (p["phone"], best["phone"])]
             if all(np.isfinite(a) and np.isfinite(b) for a, b in pairs):
@@ -214,12 +226,32 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
     counted = [i for i, k in first_ref.items() if frames_of[i] >= settle and k <= len(reference) - settle]
     delays = [(first_rt.get(i, len(reference)) - first_ref[i]) / fps for i in counted]
     return {"recall_vs_reference": hit / total if total else float("nan"),
+            "recall_clear": clear_hit / clear if clear else float("nan"),
             "first_detection_s": max(delays, default=0.0),
             "first_detection_people": len(counted),
             "never_found": sum(i not in first_rt for i in counted),
             "traits_within_0_1": agree / both if both else float("nan"),
             "trust_traits_within_0_1": agree_traits / both_traits if both_traits else float("nan"),
             "trust_within_0_1": agree_trust / both_traits if both_traits else float("nan")}  # fmt: skip
+
+
+#: Box height (px) from which a person counts as clearly visible (``recall_clear``): the size from
+#: which the labelled evaluation (trust_eval.py) counts people and both proposers work.
+CLEAR_PX = 80.0
+
+
+def reference_new_share(reference: list[list[dict]]) -> float:
+    """Share of the reference's person-frames, after the first frame, whose track the reference did
+    not report on the frame before: people it finds anew (entering, or found again after a frame or
+    more without them). The reference detects on every frame; a design whose search hands its
+    findings over even one frame later can match these only with a box it carried, so this share
+    bounds how close to 1 its ``recall_vs_reference`` can come."""
+    new = total = 0
+    for prev, cur in itertools.pairwise(reference):
+        before = {p["id"] for p in prev}
+        total += len(cur)
+        new += sum(p["id"] not in before for p in cur)
+    return new / total if total else float("nan")
 
 
 def frame_to_frame_agreement(reference: list[list[dict]]) -> float:
@@ -255,6 +287,7 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
         size = f"{frames[0].shape[1]}x{frames[0].shape[0]}"
         rows.append({"name": name, "size": size, "body_search": body, "mode": "reference", "fps": ref_fps,
                      "traits_frame_to_frame": frame_to_frame_agreement(reference),
+                     "reference_new_share": reference_new_share(reference),
                      "load_avg": round(load0, 2)})  # fmt: skip
         for budget in args.max_latency:
             load0 = os.getloadavg()[0]
@@ -267,14 +300,16 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
                          "latency_ms_p95": rt["latency_ms_p95"], "dropped": rt["dropped"], "load_avg": load,
                          "searches": rt["searches"], "search_mean_s": rt["search_mean_s"],
                          "stream_fps": args.stream_fps})  # fmt: skip
-        for secs in args.search_seconds:
-            st = run_in_step(frames, args.stream_fps, model, secs, body)
+        for secs, every in itertools.product(args.search_seconds, args.landmark_every):
+            st = run_in_step(frames, args.stream_fps, model, secs, body, every)
             rows.append({"name": name, "size": size, "body_search": body, "mode": "in-step", "search_s": secs,
+                         "landmark_every": every,
                          "search_frames": st["search_frames"], "compute_fps": st["compute_fps"],
                          **compare(reference, st["per_frame"], args.stream_fps),
                          "stream_fps": args.stream_fps})  # fmt: skip
-    cols = ["name", "size", "body_search", "mode", "max_latency_s", "search_s", "fps", "throughput_fps", "compute_fps",
-            "recall_vs_reference", "first_detection_s", "first_detection_people", "never_found", "traits_within_0_1",
+    cols = ["name", "size", "body_search", "mode", "max_latency_s", "search_s", "landmark_every", "fps",
+            "throughput_fps", "compute_fps", "recall_vs_reference", "recall_clear", "reference_new_share",
+            "first_detection_s", "first_detection_people", "never_found", "traits_within_0_1",
             "traits_frame_to_frame", "trust_traits_within_0_1", "trust_within_0_1", "latency_ms_p95", "dropped",
             "load_avg"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
@@ -295,6 +330,9 @@ def main() -> None:
     ap.add_argument("--search-seconds", type=float, nargs="*", default=[],
                     help="--realtime: also the real-time design in step with the frames, its search taking "
                     "each of these stream seconds (rows in-step: no frame dropped, no load effect)")  # fmt: skip
+    ap.add_argument("--landmark-every", type=int, nargs="+", default=[2],
+                    help="--realtime: the in-step rows' RealtimeConfig.landmark_every, each (1: every person "
+                    "fitted on every frame)")  # fmt: skip
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
@@ -306,6 +344,8 @@ def main() -> None:
         ap.error(f"--max-latency: seconds in [0, 10] (0: newest frame only), got {args.max_latency}")
     if any(not 0.0 < b <= 10.0 for b in args.search_seconds):
         ap.error(f"--search-seconds: seconds in (0, 10], got {args.search_seconds}")
+    if any(not 1 <= n <= 10 for n in args.landmark_every):
+        ap.error(f"--landmark-every: integers in [1, 10], got {args.landmark_every}")
     if not SHARED.is_dir():
         raise SystemExit(f"needs the shared data at {SHARED}")
     model = LookingModel.from_file()

@@ -198,14 +198,7 @@ def test_realtime_backend_answers_first_frame_in_full_then_follows_and_stops(seq
 def test_benchmark_comparison_of_realtime_with_reference():
     """bench_perception --realtime: recall over the reference's person-frames (a dropped frame
     reports nobody), the worst first-detection delay in stream seconds, trait agreement."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_perception.py"
-    spec = importlib.util.spec_from_file_location("bench_perception", path)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = _bench_module()
 
     def person(pid, x, eye=0.2, phone=0.9):
         return {"id": pid, "bbox": np.array([x, 0.0, x + 10.0, 30.0]), "eye": eye, "phone": phone}
@@ -222,6 +215,39 @@ def test_benchmark_comparison_of_realtime_with_reference():
     lost = bench.compare(reference, [[person(7, 0)], None, [person(7, 4)], []], fps=10.0, settle_s=0.1)
     assert lost["never_found"] == 1 and lost["first_detection_s"] == pytest.approx(0.3)  # frame 1 -> end (4)
     assert out["traits_within_0_1"] == pytest.approx(3 / 4)
+    # recall over clearly visible people (>= 80 px tall) only: here nobody is, so it is undefined
+    assert np.isnan(out["recall_clear"])
+    tall = [[{**p, "bbox": p["bbox"] * [1, 1, 1, 3]} for p in frame] if frame is not None else None
+            for frame in reference]  # fmt: skip
+    tall_rt = [[{**p, "bbox": p["bbox"] * [1, 1, 1, 3]} for p in frame] if frame is not None else None
+               for frame in realtime]  # fmt: skip
+    assert bench.compare(tall, tall_rt, fps=10.0, settle_s=0.1)["recall_clear"] == pytest.approx(4 / 6)
+
+
+def test_benchmark_share_of_people_the_reference_finds_anew():
+    """reference_new_share: person-frames (after the first frame) whose track was not on the frame
+    before, what a search handing over a frame later cannot match without a carried box."""
+    bench = _bench_module()
+
+    def person(pid):
+        return {"id": pid, "bbox": np.zeros(4), "eye": 0.0, "phone": 0.0}
+
+    # frame 1: 1 kept, 2 new; frame 2: 1, 2 kept; frame 3: 2 kept, 1 back after a gap -> 2 new of 5
+    reference = [[person(1)], [person(1), person(2)], [person(2)], [person(2), person(1)]]
+    assert bench.reference_new_share(reference) == pytest.approx(2 / 5)
+    assert np.isnan(bench.reference_new_share([[person(1)]]))
+
+
+def _bench_module():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_perception.py"
+    spec = importlib.util.spec_from_file_location("bench_perception", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
 
 
 def test_drive_refuses_realtime_perception_without_rendered_frames(capsys, tmp_path):
