@@ -65,6 +65,7 @@ BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
     "duration": (float, 0, 600, True, " s"),
     "carla_fov": (float, 10, 170, False, " degrees"),
     "search_seconds": (float, 0, 10, True, " s"),
+    "perception_latency": (float, 0, 5, False, " s"),
 }
 
 
@@ -697,7 +698,7 @@ def _drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
     opt = lambda name: getattr(args, name, None)  # noqa: E731  (an option a caller's namespace lacks: not given)
     check_bounds(args, "seed", "rate", "control_rate", "port", "timeout", "fov", "camera_height", "pitch",
-                 "safety_radius", "horizon", "v_max", "duration", "carla_fov")  # fmt: skip
+                 "safety_radius", "horizon", "v_max", "duration", "carla_fov", "perception_latency")  # fmt: skip
     sc = load_drive_scenario(args.case)
     camera = {k: v for k, v in (("fov_deg", opt("fov")), ("up", opt("camera_height")), ("pitch_deg", opt("pitch")))
               if v is not None}  # fmt: skip
@@ -715,6 +716,8 @@ def _drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         changes["carla"] = dataclasses.replace(sc.carla, **route)
     if opt("duration") is not None:
         changes["duration"] = float(opt("duration"))
+    if opt("perception_latency") is not None:
+        changes["sensing"] = dataclasses.replace(sc.sensing, perception_latency=float(opt("perception_latency")))
     return dataclasses.replace(sc, **changes) if changes else sc
 
 
@@ -1012,6 +1015,11 @@ def _scenario_options(d: argparse.ArgumentParser) -> None:
     k.add_argument("--horizon", type=int, help=f"MPC horizon N_h, {_range('horizon')}")
     k.add_argument("--v-max", type=float, help=f"speed bound of the reference, {_range('v_max')}")
     k.add_argument("--duration", type=float, help=f"time limit of an episode, {_range('duration')}")
+    p = d.add_argument_group("perception (default: the scenario's)")
+    p.add_argument("--perception-latency", type=float, metavar="S",
+                   help=f"seconds from a frame's capture to its people reaching the controller's estimates, "
+                   f"{_range('perception_latency')} (default: the scenario's [sensing] perception_latency, 0; "
+                   "the 2-core machine's real-time perception takes ~0.1-0.4 s, docs/perception.md)")  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -132,7 +132,15 @@ def _drive(task: EpisodeTask) -> dict[str, Any]:
     p = task.params
     sc = load_drive_scenario(p["scenario"])
     ctl = {k: p[k] for k in ("horizon", "safety_radius", "deadline", "confidence") if k in p}
-    sens_keys = ("pixel_noise", "dropout", "miss_rate", "position_noise", "velocity_noise", "pitch_sigma_deg")
+    sens_keys = (
+        "pixel_noise",
+        "dropout",
+        "miss_rate",
+        "position_noise",
+        "velocity_noise",
+        "pitch_sigma_deg",
+        "perception_latency",
+    )
     sens = {k: p[k] for k in sens_keys if k in p}
     sc = replace(
         sc,

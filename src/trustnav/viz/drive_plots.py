@@ -165,6 +165,7 @@ def plot_top_view(
     ax.set_xlabel("map y (m), driving direction →")
     ax.set_ylabel("map x (m)")
     sensing = f"{r0.sensing} sensing" + (f", camera {r0.capture_rate:g} frame/s" if r0.frames else "")
+    sensing += _latency_note(r0)
     ax.set_title(f"top view to scale ({sensing}); rings: R = {radius:g} m at the closest approach")
     style.legend(ax, loc="lower left", ncol=3, fontsize=7.5)
 
@@ -272,7 +273,7 @@ def plot_trust(result: DriveResult, path: str | Path) -> Path:
     ax.set_xlabel("time (s)")
     ax.set_ylabel("trust (0 to 1)")
     ax.set_title(f"{result.scenario.name}: trust from the camera ({result.sensing} sensing, "
-                 f"{result.capture_rate:g} frame/s)", pad=9)  # fmt: skip
+                 f"{result.capture_rate:g} frame/s{_latency_note(result)})", pad=9)  # fmt: skip
     style.legend(ax, loc="upper right")
     return style.save(fig, path)
 
@@ -475,7 +476,7 @@ def write_animation(
     size = (1280, 400)
     cam_w, cam_h = 640, 360
     canvas = (size[0], size[1] + cam_h)
-    idx_of_frame = np.searchsorted(result.times, [f.time for f in result.frames], side="left")
+    idx_of_frame = np.searchsorted(result.times, [f.known_at for f in result.frames], side="left")
     sc = result.scenario
     trusts = trusts_in_force(result)
     images = []
@@ -489,7 +490,11 @@ def write_animation(
         x0, y = cam_w + 24, size[1] + 40
         lines = [
             (f"{sc.title}", (255, 255, 255)),
-            (f"{result.sensing} sensing, camera {result.capture_rate:g} frame/s, control {sc.control.rate:g} Hz", None),
+            (
+                f"{result.sensing} sensing, camera {result.capture_rate:g} frame/s{_latency_note(result)}, "
+                f"control {sc.control.rate:g} Hz",
+                None,
+            ),
             ("left: latest camera frame (box colour = trust, chip = pedestrian,", None),
             ("      skeleton colour = eye contact, phone N/U/Y)", None),
             ("top: cyan = MPC plan, black = path; ring = R around each pedestrian", None),
@@ -554,3 +559,11 @@ def write_drive_outputs(
     if video:
         paths["video"] = write_animation(result, out / "drive.mp4", frames, fps=result.scenario.control.rate)
     return paths
+
+
+def _latency_note(result: Any) -> str:
+    """The title's note for a drive whose frames reached the estimates late (else empty): its
+    ``sensing.perception_latency``."""
+    sensing = getattr(getattr(result, "scenario", None), "sensing", None)
+    latency = float(getattr(sensing, "perception_latency", 0.0) or 0.0)
+    return f", perception latency {latency:g} s" if latency > 0 else ""

@@ -2,9 +2,10 @@
 camera frames -> perception -> trust -> bicycle MPC (`proposed` with `cbf_imp`) -> car.
 
 Two rates: the controller runs every 1 / control.rate seconds, the camera captures a frame every
-1 / camera.rate seconds (the trust-estimation rate). Rendering and perception take no simulated
-time and the controller never waits for them: a frame captured at t updates what the controller
-uses from the control step at t on.
+1 / camera.rate seconds (the trust-estimation rate). The controller never waits for perception: a
+frame captured at t updates what the controller uses from the first control step at or after
+t + ``sensing.perception_latency`` on (default 0: from the step at t on), its people stamped with
+the capture time and predicted from it to each step.
 
 Two ways the controller learns where pedestrians are (``state``):
 
@@ -246,7 +247,9 @@ class DriveSimulation:
         self.perceived = PedestrianEstimator(sc.sensing.localiser(), sc.sensing.tracker(), self.trust.estimator)
         self._truth_track: dict[int, int] = {}  # pedestrian index -> world track last seen as it (scoring)
         self._truth_trust = np.zeros(len(sc.pedestrians))  # its trust then (0 until seen)
-        self.frames: list[FrameReport] = []
+        self.frames: list[FrameReport] = []  # delivered (perception_latency after capture), in capture order
+        self._in_flight: list[_Captured] = []  # captured, not yet delivered
+        self._captured = 0
         self._next_capture = 0.0
         self.steps = 0
         self.max_steps = math.ceil(sc.duration * self.control_rate - 1e-9)
@@ -310,21 +313,49 @@ class DriveSimulation:
     def capture_due(self) -> bool:
         return self.time + 1e-9 >= self._next_capture
 
-    def capture(self) -> FrameReport:
-        """Capture a frame now, perceive it and update the trusts of the pedestrians observed."""
-        sc = self.scenario
+    @property
+    def perception_latency(self) -> float:
+        """Seconds from a frame's capture to its people reaching the estimates (``SensingSpec``)."""
+        return self.scenario.sensing.perception_latency
+
+    def capture(self) -> FrameReport | None:
+        """Capture a frame now and perceive it; its people update the estimates and trusts
+        ``perception_latency`` later (:meth:`deliver`). Returns the frame's report if that is now
+        (no latency), else None (the frame is in flight)."""
         cam, bodies = self.world.camera_view()
         sensed, image, false_pos, timing = self.sensor.sense(cam, bodies, self.time)
         if image is None:
             image = self.world.frame_image()
         true_pos, true_vel = self.pedestrians()
+        captured = _Captured(
+            self._captured, self.time, cam, bodies, sensed, image, false_pos, timing, true_pos, true_vel
+        )
+        self._in_flight.append(captured)
+        self._captured += 1
+        self._next_capture = self._captured / self.capture_rate
+        delivered = self.deliver()
+        return delivered[-1] if delivered and delivered[-1].index == captured.index else None
+
+    def deliver(self) -> list[FrameReport]:
+        """Fold in the frames in flight whose ``perception_latency`` has passed, in capture order;
+        returns their reports."""
+        due = self.time + 1e-9 - self.perception_latency
+        out = []
+        while self._in_flight and self._in_flight[0].time <= due:
+            out.append(self._fold_in(self._in_flight.pop(0)))
+        return out
+
+    def _fold_in(self, c: _Captured) -> FrameReport:
+        """A captured frame's people into the world tracker and trusts, at its capture time."""
+        sc = self.scenario
+        cam, bodies, sensed, true_pos, true_vel = c.camera, c.bodies, c.sensed, c.true_pos, c.true_vel
         tracks: tuple[Any, ...] = ()
         estimate: dict[int, tuple[NDArray, NDArray]] = {}
         if self.state_source == "perceived":
             seen = [SeenPerson(s.person, s.eye_contact, s.phone) for s in sensed]
             to_world = getattr(self.world, "camera_to_scenario", None)  # e.g. CARLA's left-handed map
-            ids = self.perceived.update(self.time, cam, seen, self.street.ground_height, to_world)
-            tracks = tuple(self.perceived.tracker.predict(self.time))
+            ids = self.perceived.update(c.time, cam, seen, self.street.ground_height, to_world)
+            tracks = tuple(self.perceived.tracker.predict(c.time))
             by_id = {t.track_id: t for t in tracks}
             memory = self.trust.estimator
             sensed = [
@@ -336,7 +367,7 @@ class DriveSimulation:
                     self._truth_track[s.index] = tid
                     estimate[s.index] = (by_id[tid].mean, by_id[tid].covariance)
         else:
-            self.trust.update(sensed, self.time)
+            self.trust.update(sensed, c.time)
             sensed = [replace(s, trust=None if s.index is None else self.trust.trust(s.index)) for s in sensed]
         by_index = {
             s.index: s for s in sensed if s.index is not None and (s.track_id >= 0 or self.state_source == "true")
@@ -361,9 +392,11 @@ class DriveSimulation:
                     estimate_cov=None if est is None else est[1].copy(),
                 )
             )
-        report = FrameReport(len(self.frames), self.time, views, false_pos, timing, cam, sensed, image, tracks)
+        report = FrameReport(
+            c.index, c.time, views, c.false_positives, c.timing, cam, sensed, c.image, tracks,
+            delivered=None if self.time <= c.time + 1e-9 else self.time,
+        )  # fmt: skip
         self.frames.append(report)
-        self._next_capture = len(self.frames) / self.capture_rate
         return report
 
     def advance_samples(
@@ -386,8 +419,10 @@ class DriveSimulation:
 
     # -- the engine's World protocol (trustnav.sim.engine)
     def observe(self) -> Observation:
-        """Capture a frame when one is due (up to ``max_frames``), then the controller's inputs."""
-        if self.capture_due() and (self.max_frames is None or len(self.frames) < self.max_frames):
+        """Fold in the frames whose perception latency has passed, capture a frame when one is due (up
+        to ``max_frames``), then the controller's inputs."""
+        self.deliver()
+        if self.capture_due() and (self.max_frames is None or self._captured < self.max_frames):
             self.capture()
         if self.state_source == "perceived":
             est = self.perceived.estimates(self.time)
@@ -415,6 +450,22 @@ class DriveSimulation:
 
     def reached_goal(self) -> bool:
         return self.distance_to_goal() <= self.scenario.goal_tolerance
+
+
+@dataclass(frozen=True)
+class _Captured:
+    """A frame as captured and perceived, before its people reach the estimates."""
+
+    index: int
+    time: float
+    camera: CameraPose
+    bodies: Bodies
+    sensed: list
+    image: NDArray[np.uint8] | None
+    false_positives: int
+    timing: dict[str, float]
+    true_pos: NDArray[np.float64]  # scoring only
+    true_vel: NDArray[np.float64]
 
 
 @dataclass
@@ -449,8 +500,9 @@ class DriveResult:
         return np.linalg.norm(self.ego[:, None, :2] - self.pedestrians, axis=2)
 
     def trust_series(self, index: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(times, trusts) of pedestrian ``index`` at the frames that observed it."""
-        pts = [(f.time, f.views[index].trust) for f in self.frames if f.views[index].observed]
+        """(times, trusts) of pedestrian ``index`` at the frames that observed it, each from when the
+        controller used it (``FrameReport.known_at``: capture time plus perception latency)."""
+        pts = [(f.known_at, f.views[index].trust) for f in self.frames if f.views[index].observed]
         arr = np.array(pts, dtype=float).reshape(-1, 2)
         return arr[:, 0], arr[:, 1]
 
@@ -463,9 +515,9 @@ class DriveResult:
 
     def estimates_at(self, i: int) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
         """(pedestrian index, estimated position (2,), covariance (2, 2)) of each pedestrian whose
-        track the last frame at or before sample ``i`` updated (perceived state; else empty)."""
+        track the last frame known at or before sample ``i`` updated (perceived state; else empty)."""
         t = float(self.times[i])
-        last = [f for f in self.frames if f.time <= t + 1e-9]
+        last = [f for f in self.frames if f.known_at <= t + 1e-9]
         if not last:
             return []
         return [
@@ -503,12 +555,13 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
     frames_seen, trust after the first observation and mean gain per frame; reached_goal,
     time_to_goal (s or null), margin_violations (control steps with some distance < R),
     yield_s (seconds the yielding layer held the car back for a pedestrian it could not pass on the
-    road), relaxed_steps, fallback_steps, solve times; render mode adds detection_recall and the wall time
-    perception took per frame (``per_frame[...]["perception_ms"]``, median and p95). Distances are
-    always the true ones. With perceived states (``state``), per pedestrian the localisation
-    error of its track after each frame that saw it (median, p95, m), the velocity error
-    (median, m/s) and interval coverage (share of those frames with the truth inside the
-    estimate's 90 % region), and ``id_switches`` (changes of a pedestrian's world track)."""
+    road), relaxed_steps, fallback_steps, solve times, perception_latency (s, the scenario's); render
+    mode adds detection_recall and the wall time perception took per frame
+    (``per_frame[...]["perception_ms"]``, median and p95). Distances are always the true ones. With
+    perceived states (``state``), per pedestrian the localisation error of its track after each
+    frame that saw it (median, p95, m), the velocity error (median, m/s) and interval coverage
+    (share of those frames with the truth inside the estimate's 90 % region), and ``id_switches``
+    (changes of a pedestrian's world track)."""
     sc = r.scenario
     radius = sc.control.safety_radius
     d = r.distances
@@ -538,6 +591,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "seed": r.seed,
         "capture_rate": r.capture_rate,
         "control_rate": sc.control.rate,
+        "perception_latency": sc.sensing.perception_latency,
         "pedestrians": peds,
         "reached_goal": bool(r.reached_goal),
         "time_to_goal": None if r.time_to_goal is None else round(float(r.time_to_goal), 3),

@@ -114,7 +114,8 @@ class PedestrianView:
 
 @dataclass
 class FrameReport:
-    """One captured frame: time, the pedestrians' views, unmatched detections, timing, image."""
+    """One captured frame: capture time, the pedestrians' views, unmatched detections, timing, image,
+    and when its people reached the estimates (``known_at``)."""
 
     index: int
     time: float
@@ -125,6 +126,12 @@ class FrameReport:
     sensed: list[SensedPerson] = field(default_factory=list, repr=False)
     image: NDArray[np.uint8] | None = field(default=None, repr=False)  # the rendered frame (RGB), render mode
     tracks: tuple[Any, ...] = field(default=(), repr=False)  # perceived: every live world track after the frame
+    delivered: float | None = None  # when its people reached the estimates (perception latency); None: at ``time``
+
+    @property
+    def known_at(self) -> float:
+        """The time from which the controller used this frame: capture time plus perception latency."""
+        return self.time if self.delivered is None else self.delivered
 
     @property
     def detections(self) -> int:

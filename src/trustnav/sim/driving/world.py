@@ -197,6 +197,11 @@ class ControlSpec:
         return (RoadEdgeBarrier(road.start, road.end, half, half, self.road_margin, self.road_gamma, self.road_front),)
 
 
+#: The largest ``SensingSpec.perception_latency`` (s) accepted: beyond it a frame describes a street
+#: that has long changed.
+MAX_PERCEPTION_LATENCY = 5.0
+
+
 @dataclass(frozen=True)
 class SensingSpec:
     """How the car senses pedestrians.
@@ -221,6 +226,10 @@ class SensingSpec:
     ``accel_psd`` (m^2/s^3, the tracker's walking model), ``track_keep`` (s a track lives unseen
     where the camera should see it; out of view beside the
     car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
+    ``perception_latency`` (s): how long after its capture a frame's people reach the car's
+    estimates (world tracker and trust), stamped with the capture time and predicted from it to
+    each control step; 0 (default, as the paper): at once. A frame still in flight at the end of
+    an episode is never delivered.
     """
 
     position_noise: float = 0.0
@@ -241,6 +250,7 @@ class SensingSpec:
     pitch_sigma_deg: float = 0.03
     accel_psd: float = 0.25
     track_keep: float = 2.5
+    perception_latency: float = 0.0
 
     def __post_init__(self) -> None:
         if self.trust_law not in TRUST_LAWS:
@@ -257,6 +267,11 @@ class SensingSpec:
         ):
             _positive(name, getattr(self, name), allow_zero=True)
         _positive("keep_time", self.keep_time, allow_zero=True, allow_inf=True)
+        _positive("perception_latency", self.perception_latency, allow_zero=True)
+        if self.perception_latency > MAX_PERCEPTION_LATENCY:
+            raise ValueError(
+                f"perception_latency must be at most {MAX_PERCEPTION_LATENCY} s, got {self.perception_latency!r}"
+            )
         for name in ("dropout", "miss_rate", "outlier_rate"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
