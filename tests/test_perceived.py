@@ -132,6 +132,35 @@ def _estimate(xy, sigma=0.2):
     return GroundEstimate(np.asarray(xy, dtype=float), sigma**2 * np.eye(2), 10.0, 1.7, 0.0, 7)
 
 
+def _sigma_after(rate: float, seconds: float, config: WorldTrackerConfig, bias=(0.0, 0.6)) -> tuple[float, float]:
+    """A person standing at the origin placed with the same error ``bias`` (m) on every frame of
+    ``seconds`` at ``rate``: the track's position sigma (m) and how many sigmas off it is."""
+    tr = WorldTracker(config)
+    n = round(seconds * rate)
+    for k in range(n + 1):
+        tr.update(k / rate, [_estimate(bias, sigma=0.3)])
+    (state,) = tr.predict(n / rate)
+    sigma = math.sqrt(np.linalg.eigvalsh(state.covariance[:2, :2])[-1])
+    return sigma, float(np.linalg.norm(state.mean[:2])) / sigma
+
+
+def test_frames_close_together_count_as_one_placement_at_any_rate():
+    """error_correlation_s: the same bias frame after frame (one pose, one viewpoint) must not
+    shrink the covariance with the frame rate; without it, 10 frames/s are ten times as sure."""
+    tau = WorldTrackerConfig()
+    assert tau.error_correlation_s == 1.0
+    independent = WorldTrackerConfig(error_correlation_s=0.0)
+    slow, slow_off = _sigma_after(1.0, 3.0, tau)
+    assert _sigma_after(1.0, 3.0, independent) == pytest.approx((slow, slow_off))  # 1 frame/s: no change
+    for rate in (2.0, 5.0, 10.0, 30.0):
+        sigma, off = _sigma_after(rate, 3.0, tau)
+        assert sigma == pytest.approx(slow, rel=0.2) and off <= slow_off * 1.01  # as sure as at 1 frame/s
+    naive, naive_off = _sigma_after(10.0, 3.0, independent)
+    assert naive < 0.6 * slow and naive_off > 1.8 * slow_off  # independent frames: sure of the biased place
+    with pytest.raises(ValueError, match="error_correlation_s"):
+        WorldTrackerConfig(error_correlation_s=-1.0)
+
+
 def test_tracker_keeps_identity_through_one_second_gaps_and_a_crossing():
     rng = np.random.default_rng(0)
     tr = WorldTracker()

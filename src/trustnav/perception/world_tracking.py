@@ -58,7 +58,11 @@ class WorldTrackerConfig:
     most ``overlap_seconds`` old; confirm_hits: hits that confirm a track; keep_seconds: how long a
     track lives unseen where the camera should see it; out_of_view_seconds: how long outside the
     view; behind: metres behind the camera beyond which a track is dropped; max_sigma: the
-    position sigma (m) beyond which a track is dropped."""
+    position sigma (m) beyond which a track is dropped; error_correlation_s: how long a person's
+    placement errors stay alike (s): the same pose seen from nearly the same place gives the same
+    detector bias frame after frame, so a frame that follows the track's previous one by dt < this
+    is folded in with its covariance times error_correlation_s / dt (the frames of one such span
+    count as one independent placement); 0: every frame independent."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
@@ -73,6 +77,7 @@ class WorldTrackerConfig:
     out_of_view_seconds: float = 15.0
     behind: float = 6.0
     max_sigma: float = 4.0
+    error_correlation_s: float = 1.0
 
     def __post_init__(self) -> None:
         for name, lo, hi in (
@@ -88,6 +93,7 @@ class WorldTrackerConfig:
             ("out_of_view_seconds", 0.0, 3600.0),
             ("behind", 0.0, 1e4),
             ("max_sigma", 0.01, 1e3),
+            ("error_correlation_s", 0.0, 60.0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
@@ -187,6 +193,19 @@ def _mix(t: WorldTrack, dt: float, cfg: WorldTrackerConfig):
 _H = np.hstack([np.eye(2), np.zeros((2, 2))])
 
 
+def correlated_error_factor(dt: float, correlation_s: float) -> float:
+    """The factor on a placement's covariance for a frame ``dt`` seconds after the track's previous
+    one when placement errors stay alike for ``correlation_s`` (``WorldTrackerConfig``): the
+    ``correlation_s / dt`` frames of one span then carry one independent placement's information
+    (the usual covariance inflation for correlated measurements), so the track's covariance after a
+    span of frames is about the same at any frame rate. 1 (no change) from ``dt >= correlation_s``
+    on, and for a first frame or a track found again after a gap."""
+    if correlation_s <= 0.0 or not dt > 0.0:
+        return 1.0
+    factor = correlation_s / dt
+    return factor if factor > 1.0 + 1e-9 else 1.0
+
+
 class WorldTracker:
     """Follows the people of successive frames on the ground (call :meth:`update` once per frame,
     in time order; :meth:`predict` at any later time)."""
@@ -264,6 +283,9 @@ class WorldTracker:
                 t = self.tracks[a]
                 if dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
+                alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s)
+                if alike > 1.0:  # a frame soon after the last: its error is mostly that frame's again
+                    e = replace(e, covariance=e.covariance * alike)
                 self._correct(t, e)
                 t.hits += 1
                 t.last_seen = float(time)

@@ -223,7 +223,9 @@ class SensingSpec:
     ``stature`` and ``stature_sigma`` (m, the height prior), ``pitch_sigma_deg`` (how well the
     camera's pitch is known: the simulated car body does not pitch: 0.03 deg, the
     detector's common vertical shift, by default),
-    ``accel_psd`` (m^2/s^3, the tracker's walking model), ``track_keep`` (s a track lives unseen
+    ``accel_psd`` (m^2/s^3, the tracker's walking model), ``error_correlation_s`` (s over which a
+    person's placement errors stay alike: frames closer together count as one placement, see
+    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`), ``track_keep`` (s a track lives unseen
     where the camera should see it; out of view beside the
     car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
     ``perception_latency`` (s): how long after its capture a frame's people reach the car's
@@ -249,6 +251,7 @@ class SensingSpec:
     stature_sigma: float = 0.09
     pitch_sigma_deg: float = 0.03
     accel_psd: float = 0.25
+    error_correlation_s: float = 1.0
     track_keep: float = 2.5
     perception_latency: float = 0.0
 
@@ -278,7 +281,7 @@ class SensingSpec:
         if not isinstance(self.min_joints, int) or not 1 <= self.min_joints <= 17:
             raise ValueError(f"min_joints must be an integer in [1, 17], got {self.min_joints!r}")
         self.localiser()  # validates stature, stature_sigma, pitch_sigma_deg
-        self.tracker()  # validates accel_psd, track_keep
+        self.tracker()  # validates accel_psd, track_keep, error_correlation_s
 
     def trust_params(self) -> TrustParams:
         """The trust law's parameters (``trust_law``)."""
@@ -292,7 +295,9 @@ class SensingSpec:
 
     def tracker(self) -> WorldTrackerConfig:
         """The world tracker's configuration."""
-        return WorldTrackerConfig(accel_psd=self.accel_psd, keep_seconds=self.track_keep)
+        return WorldTrackerConfig(
+            accel_psd=self.accel_psd, keep_seconds=self.track_keep, error_correlation_s=self.error_correlation_s
+        )
 
 
 @dataclass(frozen=True)
