@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from trustnav.campaigns.spec import SpecError, spec_from_dict
+from trustnav.campaigns.spec import PARAMS, SpecError, spec_from_dict
 from trustnav.cli import main
 from trustnav.sim.driving.episode import DriveSimulation, run_drive
 from trustnav.sim.driving.world import SensingSpec, load_drive_scenario
@@ -111,3 +111,16 @@ def test_campaigns_sweep_the_latency():
     spec["sweeps"][0]["params"]["perception_latency"] = {"values": [-0.5]}
     with pytest.raises(SpecError, match="perception_latency"):
         spec_from_dict(spec)
+
+
+def test_the_latency_bound_is_the_same_everywhere():
+    """The CLI and campaign specs repeat MAX_PERCEPTION_LATENCY (they load without the simulator)."""
+    from trustnav.cli import BOUNDS
+    from trustnav.sim.driving.world import MAX_PERCEPTION_LATENCY
+
+    assert BOUNDS["perception_latency"][2] == MAX_PERCEPTION_LATENCY
+    check = PARAMS["drive"]["perception_latency"]
+    assert check(MAX_PERCEPTION_LATENCY) == MAX_PERCEPTION_LATENCY
+    with pytest.raises(Exception, match=r"\[0, 5\] s"):
+        check(MAX_PERCEPTION_LATENCY + 0.01)
+    SensingSpec(perception_latency=MAX_PERCEPTION_LATENCY)

@@ -65,7 +65,7 @@ BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
     "duration": (float, 0, 600, True, " s"),
     "carla_fov": (float, 10, 170, False, " degrees"),
     "search_seconds": (float, 0, 10, True, " s"),
-    "perception_latency": (float, 0, 5, False, " s"),
+    "perception_latency": (float, 0, 5, False, " s"),  # sim.driving.world.MAX_PERCEPTION_LATENCY (lazy imports)
 }
 
 

@@ -209,6 +209,7 @@ PARAMS: dict[str, dict[str, Callable[[Any], Any]]] = {
         "deadline": _num(0.0, 3600.0, lo_open=True, what=" s"),
         "state": _choice("perceived", "true"),
         "pitch_sigma_deg": _num(0.0, 20.0, what=" deg"),
+        # the bound is sim.driving.world.MAX_PERCEPTION_LATENCY, not imported here (specs load without the simulator)
         "perception_latency": _num(0.0, 5.0, what=" s (capture to the controller's estimates)"),
         "confidence": _num(0.5, 0.999),
         **_GAMMA,
