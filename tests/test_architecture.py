@@ -20,7 +20,8 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src" / "trustnav"
 
 #: package -> the trustnav packages it may import (besides itself). ``geometry`` is the optional
-#: package "below both" perception and sim (camera geometry), importing nothing of ours.
+#: package "below both" perception and sim (camera geometry), importing nothing of ours;
+#: ``schema`` (the one validation mechanism of what users type) likewise imports nothing of ours.
 ALLOWED: dict[str, set[str]] = {
     # the thin entry points may reach any layer below them (downward only; `estimate` wires
     # perception and trust directly)
@@ -33,9 +34,11 @@ ALLOWED: dict[str, set[str]] = {
     "trust": set(),
     "viz": set(),
     "geometry": set(),
+    "schema": set(),
 }
-#: lower packages that every layer may use (the geometry package below perception and sim)
-BELOW_ALL = {"geometry"}
+#: lower packages that every layer may use (the geometry package below perception and sim; the
+#: validation rules of trustnav.schema)
+BELOW_ALL = {"geometry", "schema"}
 ROOT_MODULE = "__init__"  # trustnav/__init__.py: imports nothing of ours (checked below)
 
 

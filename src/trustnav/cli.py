@@ -1203,7 +1203,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ValueError, ImportError) as exc:
-        print(f"trustnav: error: {_one_line(exc)}", file=sys.stderr)
+        for line in getattr(exc, "errors", None) or (_one_line(exc),):  # SchemaError: one line per error
+            print(f"trustnav: error: {_one_line(line)}", file=sys.stderr)
         return 2
     except OSError as exc:  # missing files, unwritable --out, full disk: one line, no traceback
         where = f": {exc.filename}" if exc.filename and str(exc.filename) not in str(exc.strerror) else ""

@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.schema import Dotted, Integer, Maybe, Number, OneOf, Pair, Seq, check_fields, load
 from trustnav.sim.driving import body
 
 __all__ = ["BehaviourSpec", "PedestrianMotion"]
@@ -36,41 +37,19 @@ __all__ = ["BehaviourSpec", "PedestrianMotion"]
 class BehaviourSpec:
     """What a pedestrian does (see the module): path, speed, step-out time, kerb wait and gap."""
 
-    waypoints: tuple[tuple[float, float], ...] = ()
-    speed: float = 1.3
-    start_time: float = 0.0
-    wait_at: int | None = None
-    gap: float = 4.0
-    max_wait: float = math.inf
-    moving_pose: str | None = None
+    waypoints: Annotated[tuple[tuple[float, float], ...], Seq(Pair())] = ()
+    speed: Annotated[float, Number(lo=0, lo_open=True, unit=" m/s")] = 1.3
+    start_time: Annotated[float, Number(lo=0, unit=" s")] = 0.0
+    wait_at: Annotated[int | None, Maybe(Integer(0, note=" (a path index: 0 = position)"))] = None
+    gap: Annotated[float, Number(lo=0, unit=" s")] = 4.0
+    max_wait: Annotated[float, Number(lo=0, finite=False, unit=" s")] = math.inf
+    moving_pose: Annotated[str | None, Maybe(OneOf(*body.POSES), "the standing pose")] = None
 
     def __post_init__(self) -> None:
-        pts = []
-        for k, p in enumerate(self.waypoints):
-            try:
-                xy = tuple(float(v) for v in p)
-            except (TypeError, ValueError):
-                raise ValueError(f"behaviour waypoints[{k}] must be two numbers, got {p!r}") from None
-            if len(xy) != 2 or not all(math.isfinite(v) for v in xy):
-                raise ValueError(f"behaviour waypoints[{k}] must be two finite numbers, got {p!r}")
-            pts.append(xy)
-        object.__setattr__(self, "waypoints", tuple(pts))
-        for name, lo, inf_ok in (("speed", 0.0, False), ("start_time", 0.0, False), ("gap", 0.0, False),
-                                 ("max_wait", 0.0, True)):  # fmt: skip
-            v = getattr(self, name)
-            ok = not isinstance(v, bool) and isinstance(v, (int, float)) and v >= lo
-            ok = ok and (math.isfinite(v) or (inf_ok and v == math.inf))
-            if not ok or (name == "speed" and v <= 0):
-                raise ValueError(f"behaviour {name} must be a {'positive' if name == 'speed' else 'non-negative'} "
-                                 f"number, got {v!r}")  # fmt: skip
-        if self.wait_at is not None:
-            if isinstance(self.wait_at, bool) or not isinstance(self.wait_at, int):
-                raise ValueError(f"behaviour wait_at must be an integer path index, got {self.wait_at!r}")
-            if not 0 <= self.wait_at < len(self.waypoints):
-                raise ValueError(f"behaviour wait_at must index a path point with one after it (0..."
-                                 f"{len(self.waypoints) - 1}: 0 = position), got {self.wait_at}")  # fmt: skip
-        if self.moving_pose is not None and self.moving_pose not in body.POSES:
-            raise ValueError(f"behaviour moving_pose must be one of {body.POSES}, got {self.moving_pose!r}")
+        check_fields(self, Dotted("behaviour"))
+        if self.wait_at is not None and not self.wait_at < len(self.waypoints):
+            raise ValueError(f"behaviour wait_at must index a path point with one after it (0..."
+                             f"{len(self.waypoints) - 1}: 0 = position), got {self.wait_at}")  # fmt: skip
 
 
 class PedestrianMotion:
@@ -139,16 +118,7 @@ class PedestrianMotion:
 
 
 def behaviour_from(v: Any) -> BehaviourSpec | None:
-    """A ``[pedestrian.behaviour]`` table (None: none); unknown keys refused by name."""
+    """A ``[pedestrian.behaviour]`` table (None: none); unknown keys refused with the key meant."""
     if v is None or isinstance(v, BehaviourSpec):
         return v
-    if not isinstance(v, dict):
-        raise ValueError(f"behaviour must be a table of keys, got {v!r}")
-    known = set(BehaviourSpec.__dataclass_fields__)
-    unknown = sorted(set(v) - known)
-    if unknown:
-        raise ValueError(f"behaviour: unknown keys {unknown}")
-    d = dict(v)
-    if "waypoints" in d:
-        d["waypoints"] = tuple(tuple(p) if isinstance(p, list) else p for p in d["waypoints"])
-    return BehaviourSpec(**d)
+    return load(BehaviourSpec, v, Dotted("behaviour"))

@@ -16,7 +16,7 @@ from collections import deque
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,6 +31,25 @@ from trustnav.control import (
 from trustnav.geometry.camera import CameraSpec
 from trustnav.perception.localisation import LocaliserConfig
 from trustnav.perception.world_tracking import WorldTrackerConfig
+from trustnav.schema import (
+    Either,
+    InFile,
+    Integer,
+    Invalid,
+    Maybe,
+    Number,
+    OneOf,
+    Pair,
+    Place,
+    SchemaError,
+    Seq,
+    Text,
+    bad,
+    check_fields,
+    check_keys,
+    load,
+    rules_of,
+)
 from trustnav.sim.driving import body
 from trustnav.sim.driving.behaviour import BehaviourSpec, PedestrianMotion, behaviour_from
 from trustnav.sim.driving.street import StreetSpec
@@ -56,41 +75,27 @@ DRIVE_SCENARIOS = ("case-1", "case-2")
 TRUST_LAWS: dict[str, TrustParams] = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST}
 
 
-def _pair(name: str, v: Any) -> tuple[float, float]:
-    try:
-        out = tuple(float(x) for x in v)
-    except TypeError:
-        raise ValueError(f"{name} must be two numbers, got {v!r}") from None
-    if len(out) != 2 or not all(math.isfinite(x) for x in out):
-        raise ValueError(f"{name} must be two finite numbers, got {v!r}")
-    return out  # type: ignore[return-value]
-
-
-def _positive(name: str, v: float, *, allow_zero: bool = False, allow_inf: bool = False) -> None:
-    ok = (v >= 0 if allow_zero else v > 0) and (allow_inf or math.isfinite(v))
-    if not isinstance(v, (int, float)) or not ok:
-        raise ValueError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
+#: The rules of the scenario's keys (trustnav.schema): a value refused names its key and the form.
+POSITIVE = Number(lo=0, lo_open=True)
+NON_NEGATIVE = Number(lo=0)
+SHARE = Number(0.0, 1.0, hi_open=True)  # a probability below 1
+XY = Pair()
 
 
 @dataclass(frozen=True)
 class RoadSpec:
     """A straight road: its centre line from ``start`` to ``end``, lane and sidewalk widths."""
 
-    start: tuple[float, float] = (33.5, 140.0)
-    end: tuple[float, float] = (33.5, 60.0)
-    lane_width: float = 3.5
-    lanes: int = 2
-    sidewalk_width: float = 3.0
+    start: Annotated[tuple[float, float], XY] = (33.5, 140.0)
+    end: Annotated[tuple[float, float], XY] = (33.5, 60.0)
+    lane_width: Annotated[float, POSITIVE] = 3.5
+    lanes: Annotated[int, Integer(1)] = 2
+    sidewalk_width: Annotated[float, NON_NEGATIVE] = 3.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start", _pair("road start", self.start))
-        object.__setattr__(self, "end", _pair("road end", self.end))
+        check_fields(self)
         if self.start == self.end:
             raise ValueError("road start and end must differ")
-        _positive("lane_width", self.lane_width)
-        _positive("sidewalk_width", self.sidewalk_width, allow_zero=True)
-        if not isinstance(self.lanes, int) or self.lanes < 1:
-            raise ValueError(f"lanes must be an integer >= 1, got {self.lanes!r}")
 
     @property
     def width(self) -> float:
@@ -102,23 +107,16 @@ class VehicleSpec:
     """Ego plant: kinematic bicycle (wheelbase, steer and acceleration limits), actuation latency
     (s; the paper's 100 ms) and the integration sub-step (s), finer than the control period."""
 
-    wheelbase: float = 2.9
-    steer_max_deg: float = 35.0
-    accel_min: float = -6.0
-    accel_max: float = 3.0
-    speed_max: float = 15.0
-    latency: float = 0.1
-    substep: float = 0.005
+    wheelbase: Annotated[float, POSITIVE] = 2.9
+    steer_max_deg: Annotated[float, Number(0, 90, lo_open=True, hi_open=True, unit=" degrees")] = 35.0
+    accel_min: Annotated[float, Number(hi=0, hi_open=True, unit=" m/s^2")] = -6.0
+    accel_max: Annotated[float, Number(lo=0, lo_open=True, unit=" m/s^2")] = 3.0
+    speed_max: Annotated[float, POSITIVE] = 15.0
+    latency: Annotated[float, NON_NEGATIVE] = 0.1
+    substep: Annotated[float, POSITIVE] = 0.005
 
     def __post_init__(self) -> None:
-        _positive("wheelbase", self.wheelbase)
-        if not 0 < self.steer_max_deg < 90:
-            raise ValueError(f"steer_max_deg must be in (0, 90), got {self.steer_max_deg!r}")
-        if not self.accel_min < 0 < self.accel_max:
-            raise ValueError(f"need accel_min < 0 < accel_max, got {self.accel_min!r}, {self.accel_max!r}")
-        _positive("speed_max", self.speed_max)
-        _positive("latency", self.latency, allow_zero=True)
-        _positive("substep", self.substep)
+        check_fields(self)
 
     def model(self) -> KinematicBicycle:
         """The controller's model of this vehicle (same limits)."""
@@ -145,31 +143,25 @@ class ControlSpec:
     pedestrian it cannot pass on the road); on by default, ``road_edges = false`` is the paper's
     controller, which knows no road (docs/drive.md, "Road edges in the controller")."""
 
-    rate: float = 20.0
-    dt: float = 0.08
-    horizon: int = 7
-    safety_radius: float = 2.5
+    rate: Annotated[float, Number(0, 1000, lo_open=True, unit=" Hz")] = 20.0
+    dt: Annotated[float, Number(lo=0, lo_open=True, unit=" s")] = 0.08
+    horizon: Annotated[int, Integer(1, unit=" steps")] = 7
+    safety_radius: Annotated[float, Number(lo=0, lo_open=True, unit=" m")] = 2.5
     gamma: GammaParams = field(default_factory=lambda: PAPER_GAMMA_CARLA)
-    latency: float = 0.1
-    timing: str = "paper"
-    reference_gain: float = 1.0
-    reference_v_max: float = 8.0
-    deadline: float = 10.0
-    confidence: float = 0.95
+    latency: Annotated[float, Number(lo=0, unit=" s")] = 0.1
+    timing: Annotated[str, OneOf("paper", "authors_code")] = "paper"
+    reference_gain: Annotated[float, POSITIVE] = 1.0
+    reference_v_max: Annotated[float, Number(lo=0, lo_open=True, unit=" m/s")] = 8.0
+    deadline: Annotated[float, Number(lo=0, lo_open=True, unit=" s")] = 10.0
+    confidence: Annotated[float, Number(0.5, 1.0, hi_open=True)] = 0.95
     road_edges: bool = True
-    road_margin: float = 0.9
-    road_gamma: float = 0.5
-    road_front: float = 2.0
+    road_margin: Annotated[float, NON_NEGATIVE] = 0.9
+    road_gamma: Annotated[float, Number(0.0, 1.0, lo_open=True)] = 0.5
+    road_front: Annotated[float, NON_NEGATIVE] = 2.0
 
     def __post_init__(self) -> None:
-        _positive("control rate", self.rate)
-        if not isinstance(self.road_edges, bool):
-            raise ValueError(f"[control] road_edges must be true or false, got {self.road_edges!r}")
-        _positive("road_margin", self.road_margin, allow_zero=True)
-        _positive("road_front", self.road_front, allow_zero=True)
-        if not 0.0 < self.road_gamma <= 1.0:
-            raise ValueError(f"[control] road_gamma must be in (0, 1], got {self.road_gamma!r}")
-        self.config()  # validates dt, horizon, R, timing, latency
+        check_fields(self)
+        self.config()  # the controller's own checks (between fields)
         BoundedProportionalReference(self.reference_gain, self.reference_v_max)
 
     def config(self) -> MpcConfig:
@@ -234,52 +226,29 @@ class SensingSpec:
     an episode is never delivered.
     """
 
-    position_noise: float = 0.0
-    velocity_noise: float = 0.0
-    pixel_noise: float = 0.01
-    dropout: float = 0.03
-    miss_rate: float = 0.0
-    min_joints: int = 9
-    min_height_px: float = 24.0
-    keep_time: float = math.inf
-    trust_law: str = "seconds"
+    position_noise: Annotated[float, NON_NEGATIVE] = 0.0
+    velocity_noise: Annotated[float, NON_NEGATIVE] = 0.0
+    pixel_noise: Annotated[float, NON_NEGATIVE] = 0.01
+    dropout: Annotated[float, SHARE] = 0.03
+    miss_rate: Annotated[float, SHARE] = 0.0
+    min_joints: Annotated[int, Integer(1, 17)] = 9
+    min_height_px: Annotated[float, NON_NEGATIVE] = 24.0
+    keep_time: Annotated[float, Number(lo=0, finite=False, unit=" s", note=" (inf: kept for good)")] = math.inf
+    trust_law: Annotated[str, OneOf(*TRUST_LAWS)] = "seconds"
     detector_bias: bool = True
-    common_noise: float = 0.009
-    outlier_rate: float = 0.1
-    outlier_noise: float = 0.04
+    common_noise: Annotated[float, NON_NEGATIVE] = 0.009
+    outlier_rate: Annotated[float, SHARE] = 0.1
+    outlier_noise: Annotated[float, NON_NEGATIVE] = 0.04
     stature: float = 1.70
     stature_sigma: float = 0.09
     pitch_sigma_deg: float = 0.03
     accel_psd: float = 0.25
     error_correlation_s: float = 1.0
     track_keep: float = 2.5
-    perception_latency: float = 0.0
+    perception_latency: Annotated[float, Number(0, MAX_PERCEPTION_LATENCY, unit=" s")] = 0.0
 
     def __post_init__(self) -> None:
-        if self.trust_law not in TRUST_LAWS:
-            raise ValueError(f"trust_law must be one of {tuple(TRUST_LAWS)}, got {self.trust_law!r}")
-        if not isinstance(self.detector_bias, bool):
-            raise ValueError(f"detector_bias must be true or false, got {self.detector_bias!r}")
-        for name in (
-            "position_noise",
-            "velocity_noise",
-            "pixel_noise",
-            "min_height_px",
-            "common_noise",
-            "outlier_noise",
-        ):
-            _positive(name, getattr(self, name), allow_zero=True)
-        _positive("keep_time", self.keep_time, allow_zero=True, allow_inf=True)
-        _positive("perception_latency", self.perception_latency, allow_zero=True)
-        if self.perception_latency > MAX_PERCEPTION_LATENCY:
-            raise ValueError(
-                f"perception_latency must be at most {MAX_PERCEPTION_LATENCY} s, got {self.perception_latency!r}"
-            )
-        for name in ("dropout", "miss_rate", "outlier_rate"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
-        if not isinstance(self.min_joints, int) or not 1 <= self.min_joints <= 17:
-            raise ValueError(f"min_joints must be an integer in [1, 17], got {self.min_joints!r}")
+        check_fields(self)
         self.localiser()  # validates stature, stature_sigma, pitch_sigma_deg
         self.tracker()  # validates accel_psd, track_keep, error_correlation_s
 
@@ -311,15 +280,15 @@ class PedestrianSpec:
     a path, a step-out time, a kerb wait with gap acceptance and a pose while moving
     (:mod:`trustnav.sim.driving.behaviour`); None: constant ``velocity`` from t = 0."""
 
-    name: str
-    position: tuple[float, float]
-    velocity: tuple[float, float] = (0.0, 0.0)
+    name: Annotated[str, Text()]
+    position: Annotated[tuple[float, float], XY]
+    velocity: Annotated[tuple[float, float], XY] = (0.0, 0.0)
     attentive: bool = True
-    pose: str = "attentive"
-    body_yaw_deg: float = 0.0
+    pose: Annotated[str, OneOf(*body.POSES)] = "attentive"
+    body_yaw_deg: Annotated[float, Number()] = 0.0
     look_at_camera: bool = True
-    phase: float = 0.0
-    sway: float = 1.0
+    phase: Annotated[float, Number()] = 0.0
+    sway: Annotated[float, Number(0, 10)] = 1.0
     appearance: body.Appearance = field(default_factory=lambda: body.ATTENTIVE_LOOK)
     alternative: tuple[tuple[str, Any], ...] = ()
     behaviour: BehaviourSpec | None = None
@@ -327,16 +296,9 @@ class PedestrianSpec:
     def __post_init__(self) -> None:
         try:
             object.__setattr__(self, "behaviour", behaviour_from(self.behaviour))
+            check_fields(self)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"pedestrian {self.name}: {exc}") from None
-        object.__setattr__(self, "position", _pair(f"pedestrian {self.name} position", self.position))
-        object.__setattr__(self, "velocity", _pair(f"pedestrian {self.name} velocity", self.velocity))
-        if self.pose not in body.POSES:
-            raise ValueError(f"pedestrian {self.name}: pose must be one of {body.POSES}, got {self.pose!r}")
-        if not math.isfinite(self.body_yaw_deg) or not math.isfinite(self.phase):
-            raise ValueError(f"pedestrian {self.name}: body_yaw_deg and phase must be finite")
-        if not 0 <= self.sway <= 10:
-            raise ValueError(f"pedestrian {self.name}: sway must be in [0, 10], got {self.sway!r}")
 
     @property
     def body_yaw(self) -> float:
@@ -354,10 +316,8 @@ class PedestrianSpec:
         return replace(self, attentive=attentive, alternative=(), **kw)
 
 
-def _walker(name: str, v: Any) -> None:
-    ok = v is None or (isinstance(v, str) and bool(v)) or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
-    if not ok:
-        raise ValueError(f"[carla] {name} must be a walker blueprint id or an index >= 0, got {v!r}")
+#: A CARLA walker: a blueprint id or an index into the sorted ``walker.pedestrian.*`` ids.
+WALKER = Maybe(Either(Text(what="a walker blueprint id"), Integer(0, note=" (an index into the walkers)")))
 
 
 @dataclass(frozen=True)
@@ -369,23 +329,14 @@ class CarlaRouteSpec:
     (None: the bridge's defaults). Passed through to the bridge's ``CarlaOptions``; the own world
     ignores it."""
 
-    town: str | None = None
-    fov_deg: float | None = None
-    attentive_walker: int | str | None = None
-    distracted_walker: int | str | None = None
-    vehicle_blueprint: str | None = None
+    town: Annotated[str | None, Maybe(Text())] = None
+    fov_deg: Annotated[float | None, Maybe(Number(1, 170, unit=" degrees"))] = None
+    attentive_walker: Annotated[int | str | None, WALKER] = None
+    distracted_walker: Annotated[int | str | None, WALKER] = None
+    vehicle_blueprint: Annotated[str | None, Maybe(Text())] = None
 
     def __post_init__(self) -> None:
-        for name in ("town", "vehicle_blueprint"):
-            v = getattr(self, name)
-            if v is not None and (not isinstance(v, str) or not v):
-                raise ValueError(f"[carla] {name} must be a non-empty string, got {v!r}")
-        if self.fov_deg is not None and (
-            isinstance(self.fov_deg, bool) or not isinstance(self.fov_deg, (int, float)) or not 1 <= self.fov_deg <= 170
-        ):
-            raise ValueError(f"[carla] fov_deg must be in [1, 170] degrees, got {self.fov_deg!r}")
-        _walker("attentive_walker", self.attentive_walker)
-        _walker("distracted_walker", self.distracted_walker)
+        check_fields(self)
 
     def options(self) -> dict[str, Any]:
         """The keyword arguments of the bridge's ``CarlaOptions`` that this section sets."""
@@ -398,27 +349,26 @@ class DriveScenario:
     controller, sensing, CARLA route (optional), time limit. ``variants``: the behaviours a plain
     run covers ("attentive", "distracted": Case II runs its pedestrian both ways; empty: as given)."""
 
-    name: str
-    title: str
-    ego_start: tuple[float, float]
-    goal: tuple[float, float]
+    name: Annotated[str, Text()]
+    title: Annotated[str, Text(empty=True)]
+    ego_start: Annotated[tuple[float, float], XY]
+    goal: Annotated[tuple[float, float], XY]
     pedestrians: tuple[PedestrianSpec, ...]
-    ego_yaw_deg: float | None = None
-    ego_speed: float = 0.0
+    ego_yaw_deg: Annotated[float | None, Maybe(Number(), "from the start toward the goal")] = None
+    ego_speed: Annotated[float, NON_NEGATIVE] = 0.0
     road: RoadSpec = field(default_factory=RoadSpec)
     camera: CameraSpec = field(default_factory=CameraSpec)
     vehicle: VehicleSpec = field(default_factory=VehicleSpec)
     control: ControlSpec = field(default_factory=ControlSpec)
     sensing: SensingSpec = field(default_factory=SensingSpec)
     carla: CarlaRouteSpec = field(default_factory=CarlaRouteSpec)
-    variants: tuple[str, ...] = ()
-    duration: float = 25.0
-    goal_tolerance: float = 1.0
+    variants: Annotated[tuple[str, ...], Seq(OneOf("attentive", "distracted"))] = ()
+    duration: Annotated[float, Number(lo=0, lo_open=True, unit=" s")] = 25.0
+    goal_tolerance: Annotated[float, Number(lo=0, lo_open=True, unit=" m")] = 1.0
     notes: str = ""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "ego_start", _pair("ego_start", self.ego_start))
-        object.__setattr__(self, "goal", _pair("goal", self.goal))
+        check_fields(self)
         if self.ego_start == self.goal:
             raise ValueError(f"scenario {self.name}: ego_start and goal must differ")
         if not self.pedestrians:
@@ -426,12 +376,8 @@ class DriveScenario:
         names = [p.name for p in self.pedestrians]
         if len(set(names)) != len(names):
             raise ValueError(f"scenario {self.name}: pedestrian names must be unique, got {names}")
-        if not 0 <= self.ego_speed <= self.vehicle.speed_max:
+        if not self.ego_speed <= self.vehicle.speed_max:
             raise ValueError(f"scenario {self.name}: ego_speed must be in [0, speed_max]")
-        if any(v not in ("attentive", "distracted") for v in self.variants):
-            raise ValueError(f"scenario {self.name}: variants must be 'attentive' or 'distracted'")
-        _positive("duration", self.duration)
-        _positive("goal_tolerance", self.goal_tolerance)
 
     @property
     def ego_yaw(self) -> float:
@@ -452,70 +398,71 @@ class DriveScenario:
         return replace(self, pedestrians=tuple(p.with_attention(attentive) for p in self.pedestrians), variants=())
 
 
-def _appearance(v: Any) -> body.Appearance:
+def _appearance(v: Any, place: Place | None = None) -> body.Appearance:
+    """A preset name of body.py (attentive, distracted, walker) or a table of colours."""
     if isinstance(v, body.Appearance):
         return v
     if isinstance(v, str):
         preset = getattr(body, f"{v.upper()}_LOOK", None)
         if not isinstance(preset, body.Appearance):
-            raise ValueError(f"unknown appearance preset {v!r} (attentive, distracted, walker)")
+            raise Invalid("a preset name ('attentive', 'distracted', 'walker') or a table of colours", v)
         return preset
+    if isinstance(v, dict) and place is not None:
+        return load(body.Appearance, v, place)
     if isinstance(v, dict):
         return body.Appearance(**v)
-    raise ValueError(f"appearance must be a preset name or a table of colours, got {v!r}")
+    raise Invalid("a preset name ('attentive', 'distracted', 'walker') or a table of colours", v)
 
 
-def _section(cls: type, d: dict[str, Any] | None, where: str) -> Any:
-    if d is not None and not isinstance(d, dict):
-        raise ValueError(f"{where}: expected a table of keys, got {d!r}")
-    d = dict(d or {})
-    known = {f.name for f in fields(cls)}
-    unknown = set(d) - known
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
-    _check_numbers(cls, d, where)
-    return cls(**d)
+#: The keys ``[pedestrian.alternative]`` may override (the other behaviour of the same pedestrian).
+ALTERNATIVE_KEYS = tuple(f.name for f in fields(PedestrianSpec) if f.name not in ("name", "alternative"))
 
 
-_NUMBER_TYPES = {"float": "a number", "int": "an integer", "float | None": "a number", "int | None": "an integer"}
+def _alternative(v: Any, place: Place) -> tuple[tuple[str, Any], ...]:
+    """``[pedestrian.alternative]``: keys of the pedestrian, each checked by its rule."""
+    if not isinstance(v, dict):
+        raise SchemaError(f"{place.table} must be a table of keys, got {v!r}")
+    errors = check_keys(v, ALTERNATIVE_KEYS, place)
+    rules = rules_of(PedestrianSpec)
+    for key, value in v.items():
+        try:
+            if key == "appearance":
+                _appearance(value, place.sub(key))
+            elif key in rules and key in ALTERNATIVE_KEYS:
+                rules[key](value)
+        except Invalid as exc:
+            errors.append(bad(place, key, exc))
+        except SchemaError as exc:
+            errors.extend(exc.errors)
+    if errors:
+        raise SchemaError(errors)
+    return tuple(sorted(v.items()))
 
 
-def _check_numbers(cls: type, d: dict[str, Any], where: str) -> None:
-    """A key whose field is a plain number must hold one (TOML lets a user write a string there)."""
-    for f in fields(cls):
-        want = _NUMBER_TYPES.get(str(f.type))
-        if want is None or f.name not in d or (d[f.name] is None and "None" in str(f.type)):
-            continue
-        v = d[f.name]
-        ok = not isinstance(v, bool) and (isinstance(v, int) if want == "an integer" else isinstance(v, (int, float)))
-        if not ok:
-            raise ValueError(f"{where}: {f.name} must be {want}, got {v!r}")
+def _pedestrians(v: Any, place: Place) -> tuple[PedestrianSpec, ...]:
+    """The ``[[pedestrian]]`` tables, each named in its errors by its name (or number)."""
+    if not isinstance(v, list) or not v:
+        raise SchemaError(f"{place.table} needs [[pedestrian]] tables, each with name and position = [x, y]")
+    file = place.file if isinstance(place, InFile) else str(place.table)
+    out, errors = [], []
+    for i, p in enumerate(v):
+        label = f"pedestrian {p['name']!r}" if isinstance(p, dict) and isinstance(p.get("name"), str) else (
+            f"pedestrian {i + 1}")  # fmt: skip
+        convert = {"appearance": _appearance, "alternative": _alternative}
+        try:
+            out.append(load(PedestrianSpec, p, InFile(file, label), convert=convert))
+        except SchemaError as exc:
+            errors.extend(exc.errors)
+    if errors:
+        raise SchemaError(errors)
+    return tuple(out)
 
 
-def _scenario_from_dict(d: dict[str, Any]) -> DriveScenario:
-    d = dict(d)
-    name = d.get("name", "?")
-    peds = []
-    for p in d.pop("pedestrian", []):
-        p = dict(p)
-        alt = p.pop("alternative", {})
-        if "appearance" in p:
-            p["appearance"] = _appearance(p["appearance"])
-        peds.append(_section(PedestrianSpec, {**p, "alternative": tuple(sorted(alt.items()))}, f"{name} pedestrian"))
-    control = dict(d.pop("control", None) or {})
-    if "gamma" in control:
-        control["gamma"] = _section(GammaParams, control["gamma"], f"{name} [control.gamma]")
-    sections = {
-        "road": _section(RoadSpec, d.pop("road", None), f"{name} [road]"),
-        "camera": _section(CameraSpec, d.pop("camera", None), f"{name} [camera]"),
-        "vehicle": _section(VehicleSpec, d.pop("vehicle", None), f"{name} [vehicle]"),
-        "control": _section(ControlSpec, control, f"{name} [control]"),
-        "sensing": _section(SensingSpec, d.pop("sensing", None), f"{name} [sensing]"),
-        "carla": _section(CarlaRouteSpec, d.pop("carla", None), f"{name} [carla]"),
-    }
-    if "variants" in d:
-        d["variants"] = tuple(d["variants"])
-    return _section(DriveScenario, {**d, **sections, "pedestrians": tuple(peds)}, f"scenario {name}")
+def _scenario_from_dict(d: dict[str, Any], source: str) -> DriveScenario:
+    """A scenario from its TOML document; every error names ``source`` (the file or preset)."""
+    place = InFile(source)
+    return load(DriveScenario, d, place, convert={"pedestrians": lambda v, _: _pedestrians(v, place)},
+                rename={"pedestrian": "pedestrians"})  # fmt: skip
 
 
 def load_drive_scenario(name_or_path: str | Path) -> DriveScenario:
@@ -544,12 +491,7 @@ def load_drive_scenario(name_or_path: str | Path) -> DriveScenario:
     if "trust_sweep" in data or "horizons" in data:
         raise ValueError(f"{name}: a numerical scenario of the paper (run it with `trustnav scenario`), "
                          "not a driving scenario")  # fmt: skip
-    try:
-        return _scenario_from_dict(data)
-    except TypeError as exc:
-        raise ValueError(f"{name}: {exc}") from exc
-    except ValueError as exc:
-        raise ValueError(f"{name}: {exc}" if name not in str(exc) else str(exc)) from exc
+    return _scenario_from_dict(data, name)
 
 
 def pedestrian_states(scenario: DriveScenario, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
