@@ -520,6 +520,12 @@ def load(
     for name, f in fields.items():
         missing = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
         key = next((k for k, v in rename.items() if v == name), name)
+        if missing and name not in values and key not in table and name in convert:
+            try:  # a converter says what it needs
+                convert[name](None, place.sub(key))
+            except (SchemaError, Invalid) as exc:
+                errors.extend(exc.errors if isinstance(exc, SchemaError) else [bad(place, key, exc)])
+                continue
         if missing and name not in values and key not in table:
             rule = rules.get(name)
             errors.append(f"missing key {key!r} in {place.table}" + (f": expected {rule.expected}" if rule else ""))

@@ -10,9 +10,8 @@ import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
-from numbers import Integral, Real
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,6 +24,19 @@ from trustnav.control import (
     VelocityTrackingCost,
 )
 from trustnav.control.barrier import TIMINGS
+from trustnav.schema import (
+    Dotted,
+    InFile,
+    Integer,
+    Number,
+    OneOf,
+    Pair,
+    SchemaError,
+    Seq,
+    Text,
+    check_fields,
+    load,
+)
 from trustnav.sim.engine import SIMULATION_DEADLINE, EpisodeResult, Observation, Sample, make_mpc, run
 from trustnav.trust import GammaParams
 
@@ -44,106 +56,60 @@ __all__ = [
 SCENARIOS = ("paper-1", "paper-2", "paper-3")
 
 
-def _number(name: str, value: object, *, positive: bool = False, integer: bool = False) -> float:
-    """``value`` as a finite float (an int with ``integer``), else ValueError naming ``name``."""
-    kind = "an integer" if integer else "a number"
-    if isinstance(value, bool) or not isinstance(value, Integral if integer else Real):
-        raise ValueError(f"{name} must be {kind}, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (positive and not v > 0):
-        what = f"{'a positive' if positive else 'a finite'} {'integer' if integer else 'number'}"
-        raise ValueError(f"{name} must be {what}, got {value!r}")
-    return int(v) if integer else v
-
-
-def _pair(name: str, value: object) -> tuple[float, float]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:  # type: ignore[arg-type]
-        raise ValueError(f"{name} must be 2 numbers [x, y], got {value!r}")
-    return (_number(f"{name}[0]", value[0]), _number(f"{name}[1]", value[1]))  # type: ignore[index]
+#: The rules of a scenario file's keys (trustnav.schema); numbers are kept as floats.
+POSITIVE = Number(lo=0, lo_open=True, cast=True)
+XY = Pair()
 
 
 @dataclass(frozen=True)
 class Pedestrian:
     """A pedestrian of a scenario: start position (m), constant velocity (m/s), trust in [0, 1]."""
 
-    position: tuple[float, float]
-    velocity: tuple[float, float] = (0.0, 0.0)
-    trust: float = 1.0
+    position: Annotated[tuple[float, float], XY]
+    velocity: Annotated[tuple[float, float], XY] = (0.0, 0.0)
+    trust: Annotated[float, Number(0.0, 1.0, cast=True)] = 1.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _pair("pedestrian position", self.position))
-        object.__setattr__(self, "velocity", _pair("pedestrian velocity", self.velocity))
-        t = _number("pedestrian trust", self.trust)
-        if not 0.0 <= t <= 1.0:
-            raise ValueError(f"pedestrian trust must lie in [0, 1], got {self.trust!r}")
-        object.__setattr__(self, "trust", t)
+        check_fields(self, Dotted("pedestrian"))
 
 
 @dataclass(frozen=True)
 class PaperScenario:
     """One numerical scenario: world, agents, MPC and reference parameters."""
 
-    name: str
-    title: str
-    ego_start: tuple[float, float]
-    goal: tuple[float, float]
+    name: Annotated[str, Text(empty=True)]
+    title: Annotated[str, Text(empty=True)]
+    ego_start: Annotated[tuple[float, float], XY]
+    goal: Annotated[tuple[float, float], XY]
     pedestrians: tuple[Pedestrian, ...]
-    horizons: tuple[int, ...] = (7,)
-    trust_sweep: tuple[float, ...] = ()
+    horizons: Annotated[tuple[int, ...], Seq(Integer(1), min_len=1)] = (7,)
+    trust_sweep: Annotated[tuple[float, ...], Seq(Number(0.0, 1.0, cast=True))] = ()
     control_equal_trust: bool = False
     compare_timings: bool = False
-    dt: float = 0.05
-    safety_radius: float = 3.0
+    dt: Annotated[float, POSITIVE] = 0.05
+    safety_radius: Annotated[float, POSITIVE] = 3.0
     gamma: GammaParams = field(default_factory=GammaParams)
-    timing: str = "paper"
-    reference_gain: float = 1.5
-    reference_v_max: float = 10.0
-    reference_mode: str = "rollout"
-    u_max: float = 20.0
-    max_steps: int = 1000
-    goal_tolerance: float = 0.25
-    world_size: tuple[float, float] = (50.0, 50.0)
-    notes: str = ""
+    timing: Annotated[str, OneOf(*TIMINGS)] = "paper"
+    reference_gain: Annotated[float, POSITIVE] = 1.5
+    reference_v_max: Annotated[float, POSITIVE] = 10.0
+    reference_mode: Annotated[str, OneOf("rollout", "hold")] = "rollout"
+    u_max: Annotated[float, POSITIVE] = 20.0
+    max_steps: Annotated[int, Integer(1)] = 1000
+    goal_tolerance: Annotated[float, POSITIVE] = 0.25
+    world_size: Annotated[tuple[float, float], XY] = (50.0, 50.0)
+    notes: Annotated[str, Text(empty=True)] = ""
 
     def __post_init__(self) -> None:
         try:
-            self._validate()
-        except ValueError as exc:
-            raise ValueError(f"scenario {self.name}: {exc}") from None
-
-    def _validate(self) -> None:
-        for key in ("name", "title", "notes"):
-            if not isinstance(getattr(self, key), str):
-                raise ValueError(f"{key} must be a string, got {getattr(self, key)!r}")
-        setf = object.__setattr__
-        for key in ("ego_start", "goal", "world_size"):
-            setf(self, key, _pair(key, getattr(self, key)))
+            check_fields(self)
+        except SchemaError as exc:
+            raise SchemaError(f"scenario {self.name}: {e}" for e in exc.errors) from None
         if not isinstance(self.pedestrians, tuple) or not self.pedestrians:
-            raise ValueError("needs at least one pedestrian")
+            raise ValueError(f"scenario {self.name}: needs at least one pedestrian")
         if not all(isinstance(p, Pedestrian) for p in self.pedestrians):
-            raise ValueError("pedestrians must be Pedestrian objects")
-        if isinstance(self.horizons, (str, bytes)) or not self.horizons:
-            raise ValueError(f"horizons must be integers >= 1, got {self.horizons!r}")
-        hs = tuple(_number("horizons", h, integer=True) for h in self.horizons)
-        if any(h < 1 for h in hs):
-            raise ValueError(f"horizons must be integers >= 1, got {self.horizons!r}")
-        setf(self, "horizons", hs)
-        ts = tuple(_number("trust_sweep", t) for t in self.trust_sweep)
-        if any(not 0 <= t <= 1 for t in ts):
-            raise ValueError(f"trust_sweep values must lie in [0, 1], got {self.trust_sweep!r}")
-        setf(self, "trust_sweep", ts)
-        for key in ("control_equal_trust", "compare_timings"):
-            if not isinstance(getattr(self, key), bool):
-                raise ValueError(f"{key} must be true or false, got {getattr(self, key)!r}")
-        for key in ("dt", "safety_radius", "reference_gain", "reference_v_max", "u_max", "goal_tolerance"):
-            setf(self, key, _number(key, getattr(self, key), positive=True))
-        setf(self, "max_steps", _number("max_steps", self.max_steps, positive=True, integer=True))
-        if self.reference_mode not in ("rollout", "hold"):
-            raise ValueError(f"reference_mode must be 'rollout' or 'hold', got {self.reference_mode!r}")
-        if self.timing not in TIMINGS:
-            raise ValueError(f"timing must be one of {', '.join(TIMINGS)}, got {self.timing!r}")
+            raise ValueError(f"scenario {self.name}: pedestrians must be Pedestrian objects")
         if not isinstance(self.gamma, GammaParams):
-            raise ValueError(f"gamma must be GammaParams, got {self.gamma!r}")
+            raise ValueError(f"scenario {self.name}: gamma must be GammaParams, got {self.gamma!r}")
 
     def config(self, horizon: int | None = None, timing: str | None = None) -> MpcConfig:
         return MpcConfig(
@@ -163,50 +129,32 @@ class PaperScenario:
         return VelocityTrackingCost(goal=self.goal, reference=ref)
 
 
-def _scenario_from_dict(d: dict[str, Any]) -> PaperScenario:
-    d = dict(d)
-    where = f"scenario {d.get('name', '(no name)')}"
-    raw = d.pop("pedestrian", None)
-    if not isinstance(raw, list) or not raw or not all(isinstance(p, dict) for p in raw):
-        raise ValueError(f"{where}: needs [[pedestrian]] tables, each with a position = [x, y]")
-    peds = []
-    for i, p in enumerate(raw):
-        extra = set(p) - {"position", "velocity", "trust"}
-        if extra or "position" not in p:
-            raise ValueError(f"{where}: pedestrian {i + 1} needs position = [x, y] (and optionally velocity, "
-                             f"trust), got keys {sorted(p)}")  # fmt: skip
+def _pedestrians(v: Any, place: InFile) -> tuple[Pedestrian, ...]:
+    if not isinstance(v, list) or not v:
+        raise SchemaError(f"{place.file} needs [[pedestrian]] tables, each with position = [x, y] (and optionally "
+                          "velocity, trust)")  # fmt: skip
+    out, errors = [], []
+    for i, p in enumerate(v):
         try:
-            peds.append(Pedestrian(p["position"], p.get("velocity", (0.0, 0.0)), p.get("trust", 1.0)))
-        except ValueError as exc:
-            raise ValueError(f"{where}: pedestrian {i + 1}: {exc}") from None
-    g = d.pop("gamma", {})
-    if not isinstance(g, dict):
-        raise ValueError(f"{where}: [gamma] must be a table with gamma_ini, delta, lam")
-    fields = PaperScenario.__dataclass_fields__
-    unknown = set(d) - set(fields)
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {sorted(unknown)}")
-    missing = {"name", "title", "ego_start", "goal"} - set(d)
-    if missing:
-        raise ValueError(f"{where}: missing keys {sorted(missing)}")
-    for key in ("horizons", "trust_sweep"):
-        if key in d and not isinstance(d[key], list):
-            raise ValueError(f"{where}: {key} must be a list, got {d[key]!r}")
-        if key in d:
-            d[key] = tuple(d[key])
-    try:
-        gamma_params = GammaParams(**g)
-    except TypeError:
-        raise ValueError(f"{where}: [gamma] takes gamma_ini, delta, lam, got keys {sorted(g)}") from None
-    except ValueError as exc:
-        raise ValueError(f"{where}: [gamma] {exc}") from None
-    return PaperScenario(pedestrians=tuple(peds), gamma=gamma_params, **d)
+            out.append(load(Pedestrian, p, InFile(place.file, f"pedestrian {i + 1}")))
+        except SchemaError as exc:
+            errors.extend(exc.errors)
+    if errors:
+        raise SchemaError(errors)
+    return tuple(out)
+
+
+def _scenario_from_dict(d: dict[str, Any], source: str) -> PaperScenario:
+    """A scenario from its TOML document; every error names ``source`` (the file or preset)."""
+    place = InFile(source)
+    return load(PaperScenario, d, place, convert={"pedestrians": lambda v, _: _pedestrians(v, place)},
+                rename={"pedestrian": "pedestrians"})  # fmt: skip
 
 
 def load_scenario(name_or_path: str | Path) -> PaperScenario:
     """Load ``paper-1|paper-2|paper-3`` (shipped) or a TOML file of the same form."""
     path = Path(name_or_path)
-    if path.suffix == ".toml" and path.exists():
+    if path.suffix == ".toml" and path.is_file():
         text = path.read_text()
     elif str(name_or_path) in SCENARIOS:
         text = resources.files("trustnav.sim").joinpath(f"scenarios/{name_or_path}.toml").read_text()
@@ -216,7 +164,7 @@ def load_scenario(name_or_path: str | Path) -> PaperScenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"scenario file {name_or_path}: not valid TOML ({exc})") from None
-    return _scenario_from_dict(data)
+    return _scenario_from_dict(data, str(name_or_path))
 
 
 @dataclass
