@@ -49,11 +49,13 @@ def _records(out: Path) -> list[dict]:
 @pytest.mark.parametrize(
     ("patch", "needle"),
     [
-        ({"sweeps": []}, "sweeps: expected a non-empty list"),
-        ({"seed": -1}, "seed: expected an integer >= 0"),
-        ({"batch": 0}, "batch: expected an integer >= 1"),
-        ({"bogus": 1}, "unknown keys ['bogus']"),
-        ({"record": {"check_relaxed": "yes"}}, "record.check_relaxed: expected true or false"),
+        ({"sweeps": []}, "sweeps must be a non-empty list"),
+        ({"seed": -1}, "seed must be an integer >= 0, got -1"),
+        ({"batch": 0}, "batch must be an integer >= 1 (episodes per Dask task) or auto, got 0"),
+        ({"bogus": 1}, "unknown key 'bogus' in the top level: expected one of batch, description"),
+        ({"record": {"check_relaxed": "yes"}}, "record.check_relaxed must be true or false, got 'yes'"),
+        ({"seeds": 3}, "unknown key 'seeds' in the top level: did you mean 'seed'?"),
+        ({"record": {"step_time": True}}, "unknown key 'step_time' in record: did you mean 'step_times'?"),
     ],
 )
 def test_spec_top_level_errors_name_the_field(patch: dict, needle: str) -> None:
@@ -65,17 +67,28 @@ def test_spec_top_level_errors_name_the_field(patch: dict, needle: str) -> None:
 @pytest.mark.parametrize(
     ("sweep", "needle"),
     [
-        ({"family": "nope"}, "sweeps.si.family: expected one of ['paper', 'random_si'"),
-        ({"seeds": 0}, "sweeps.si.seeds: expected an integer >= 1"),
-        ({"seeds": {"start": 2}}, "sweeps.si.seeds: expected"),
-        ({"params": {"horizon": 0}}, "sweeps.si.params.horizon: expected an integer >= 1, got 0"),
-        ({"params": {"horizon": {"values": [4, "x"]}}}, "sweeps.si.params.horizon.values: expected an integer >= 1"),
-        ({"params": {"trust": 1.5}}, "sweeps.si.params.trust: expected a finite number [0, 1], got 1.5"),
-        ({"params": {"gamma_ini": {"uniform": [0.1]}}}, "sweeps.si.params.gamma_ini.uniform: expected [low, high]"),
-        ({"params": {"delta": {"uniform": [0.1, 0.2]}}}, "sweeps.si.random_points: expected an integer >= 1"),
-        ({"params": {"delta": {"grid": [1]}}}, "sweeps.si.params.delta: expected a value or one sweep form"),
-        ({"params": {"wheel": 1}}, "sweeps.si.params.wheel: unknown parameter for family 'random_si'"),
-        ({"params": {"lam": {"linspace": [1, 2]}}}, "sweeps.si.params.lam.linspace: expected [low, high, count]"),
+        ({"family": "nope"}, "sweeps.si.family must be one of 'paper', 'random_si'"),
+        ({"seeds": 0}, "sweeps.si.seeds must be an integer >= 1"),
+        ({"seeds": {"start": 2}}, "sweeps.si.seeds must be an integer >= 1 (seeds 0..n-1), {start: s, count: n}"),
+        ({"params": {"horizon": 0}}, "sweeps.si.params.horizon must be an integer >= 1, got 0"),
+        (
+            {"params": {"horizon": {"values": [4, "x"]}}},
+            "sweeps.si.params.horizon.values must be an integer >= 1, got 'x'",
+        ),
+        ({"params": {"trust": 1.5}}, "sweeps.si.params.trust must be a number in [0, 1], got 1.5"),
+        ({"params": {"gamma_ini": {"uniform": [0.1]}}}, "sweeps.si.params.gamma_ini.uniform must be [low, high]"),
+        ({"params": {"delta": {"uniform": [0.1, 0.2]}}}, "sweeps.si.random_points must be an integer >= 1"),
+        ({"params": {"delta": {"grid": [1]}}}, "sweeps.si.params.delta must be a value or one sweep form"),
+        (
+            {"params": {"wheel": 1}},
+            "unknown parameter 'wheel' for family 'random_si' in sweeps.si.params: expected one of",
+        ),
+        ({"params": {"lam": {"linspace": [1, 2]}}}, "sweeps.si.params.lam.linspace must be [low, high, count]"),
+        (
+            {"params": {"horizn": 4}},
+            "unknown parameter 'horizn' for family 'random_si' in sweeps.si.params: did you mean 'horizon'?",
+        ),
+        ({"random_point": 2}, "unknown key 'random_point' in sweeps[0]: did you mean 'random_points'?"),
     ],
 )
 def test_spec_sweep_errors_name_the_field_and_form(sweep: dict, needle: str) -> None:
@@ -86,7 +99,7 @@ def test_spec_sweep_errors_name_the_field_and_form(sweep: dict, needle: str) -> 
 
 
 def test_spec_required_scenario_and_file_forms(tmp_path: Path) -> None:
-    with pytest.raises(SpecError, match=r"sweeps.p.params.scenario: missing \(required for family 'paper'\)"):
+    with pytest.raises(SpecError, match=r"missing key 'scenario' in sweeps.p.params \(required for family 'paper'\)"):
         spec_from_dict({"name": "x", "sweeps": [{"name": "p", "family": "paper", "seeds": 1}]})
     with pytest.raises(SpecError, match=r"expected a \.yaml, \.yml or \.toml file"):
         load_spec(_write(tmp_path, SMALL, "spec.json"))
@@ -289,5 +302,5 @@ def test_sweep_cli_bad_spec_is_one_line_and_exit_code_2(tmp_path: Path, capsys) 
     )
     assert main(["sweep", str(bad), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == "trustnav: error: sweeps.s.params.horizon: expected an integer >= 1, got 0"
+    assert err.strip() == f"trustnav: error: sweeps.s.params.horizon in {bad} must be an integer >= 1, got 0"
     assert not (tmp_path / "o").exists()

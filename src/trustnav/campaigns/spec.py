@@ -32,15 +32,34 @@ import hashlib
 import itertools
 import json
 import math
-import re
 import tomllib
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+
+from trustnav.schema import (
+    Dotted,
+    Either,
+    Flag,
+    Integer,
+    Invalid,
+    Maybe,
+    Number,
+    OneOf,
+    Rule,
+    SchemaError,
+    Seq,
+    Text,
+    bad,
+    check_fields,
+    check_keys,
+    load,
+    rules_of,
+)
 
 __all__ = [
     "FAMILIES",
@@ -56,103 +75,40 @@ __all__ = [
 ]
 
 FAMILIES = ("paper", "random_si", "random_bicycle", "drive")
-_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+_NAME = Text(pattern=r"[A-Za-z0-9_.-]+", what="a name of letters, digits, '-', '_' or '.'")
 
 
-class SpecError(ValueError):
-    """A campaign spec that does not validate; the message names the field and the expected form."""
+class SpecError(SchemaError):
+    """A campaign spec that does not validate; one line per error, naming the field and the expected form."""
 
 
 # ----------------------------------------------------------------------------------------------
-# parameter checkers: value -> normalised value, or raise _Bad(expected form)
+# parameter rules (trustnav.schema): value -> normalised value, or Invalid with the expected form
 
 
-class _Bad(Exception):
-    """Raised by a checker with the expected form."""
+def _num(lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False, what: str = "") -> Number:
+    return Number(lo, hi, lo_open=lo_open, note=what, cast=True)
 
 
-def _int_ge(lo: int) -> Callable[[Any], int]:
-    def check(v: Any) -> int:
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v != int(v) or v < lo:
-            raise _Bad(f"an integer >= {lo}")
-        return int(v)
-
-    return check
+def _int_ge(lo: int) -> Integer:
+    return Integer(lo, whole_floats=True)
 
 
-def _num(lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False, what: str = "") -> Callable[[Any], float]:
-    def check(v: Any) -> float:
-        ok = not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
-        ok = ok and (v > lo if lo_open else v >= lo) and v <= hi
-        if not ok:
-            rng = (
-                f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-                if math.isfinite(hi)
-                else f"{'>' if lo_open else '>='} {lo:g}"
-            )
-            raise _Bad(f"a finite number {rng}{what}")
-        return float(v)
-
-    return check
+def _scenario(names: tuple[str, ...]) -> Rule:
+    return Either(OneOf(*names), Text(pattern=r".+\.toml", what="a path to a .toml scenario"))
 
 
-def _choice(*options: Any) -> Callable[[Any], Any]:
-    def check(v: Any) -> Any:
-        if v not in options or isinstance(v, bool) != any(isinstance(o, bool) for o in options if o == v):
-            raise _Bad(f"one of {list(options)}")
-        return v
-
-    return check
+def _optional(inner: Rule, none_means: str) -> Maybe:
+    return Maybe(inner, none_means, none="null")
 
 
-def _scenario(names: tuple[str, ...]) -> Callable[[Any], str]:
-    def check(v: Any) -> str:
-        if not isinstance(v, str) or not (v in names or v.endswith(".toml")):
-            raise _Bad(f"one of {list(names)} or a path to a .toml scenario")
-        return v
-
-    return check
+def _float_list(lo: float, hi: float) -> Seq:
+    return Seq(Number(lo, hi, cast=True), min_len=1, kind=list, what=f"a non-empty list of numbers in [{lo:g}, {hi:g}]")
 
 
-def _optional(inner: Callable[[Any], Any], none_means: str) -> Callable[[Any], Any]:
-    def check(v: Any) -> Any:
-        if v is None:
-            return None
-        try:
-            return inner(v)
-        except _Bad as exc:
-            raise _Bad(f"{exc} or null ({none_means})") from None
-
-    return check
-
-
-def _float_list(lo: float, hi: float) -> Callable[[Any], list[float]]:
-    def check(v: Any) -> list[float]:
-        if not isinstance(v, list | tuple) or not v:
-            raise _Bad(f"a non-empty list of numbers in [{lo:g}, {hi:g}]")
-        item = _num(lo, hi)
-        try:
-            return [item(x) for x in v]
-        except _Bad:
-            raise _Bad(f"a non-empty list of numbers in [{lo:g}, {hi:g}]") from None
-
-    return check
-
-
-def _pair_in(lo: float, hi: float) -> Callable[[Any], list[float]]:
-    def check(v: Any) -> list[float]:
-        bad = _Bad(f"a pair [low, high] with {lo:g} <= low <= high <= {hi:g}")
-        if not isinstance(v, list | tuple) or len(v) != 2:
-            raise bad
-        try:
-            a, b = _num(lo, hi)(v[0]), _num(lo, hi)(v[1])
-        except _Bad:
-            raise bad from None
-        if a > b:
-            raise bad
-        return [a, b]
-
-    return check
+def _pair_in(lo: float, hi: float) -> Seq:
+    what = f"a pair [low, high] with {lo:g} <= low <= high <= {hi:g}"
+    return Seq(Number(lo, hi, cast=True), min_len=2, max_len=2, ascending=True, kind=list, what=what)
 
 
 _GAMMA = {
@@ -160,9 +116,9 @@ _GAMMA = {
     "delta": _num(0.0, 1.0, lo_open=True, what=" (delta of `weight`)"),
     "lam": _num(1.0, what=" (lambda of `weight`)"),
 }
-_TIMING = _choice("paper", "authors_code")
+_TIMING = OneOf("paper", "authors_code")
 _DEADLINE = _optional(_num(0.0, 3600.0, lo_open=True, what=" s"), "the controller's default dt/2, wall clock")
-_RANDOM_PARAMS: dict[str, Callable[[Any], Any]] = {
+_RANDOM_PARAMS: dict[str, Rule] = {
     # distribution of worlds (RandomWorldSpec): changes which worlds a seed gives
     "max_pedestrians": _int_ge(1),
     "close_start_share": _num(0.0, 1.0),
@@ -178,14 +134,14 @@ _RANDOM_PARAMS: dict[str, Callable[[Any], Any]] = {
 }
 
 #: Parameters each family accepts, with their checkers (the expected form is in the error).
-PARAMS: dict[str, dict[str, Callable[[Any], Any]]] = {
+PARAMS: dict[str, dict[str, Rule]] = {
     "paper": {
         "scenario": _scenario(("paper-1", "paper-2", "paper-3")),
         "horizon": _int_ge(1),
         "trust": _num(0.0, 1.0),
         "trusts": _float_list(0.0, 1.0),
         "timing": _TIMING,
-        "solver": _choice("sqp", "slsqp"),
+        "solver": OneOf("sqp", "slsqp"),
         "reference_v_max": _num(0.0, lo_open=True, what=" m/s"),
         "reference_gain": _num(0.0, lo_open=True),
         "position_jitter": _num(0.0, what=" m (sigma of the pedestrians' start positions, from the seed)"),
@@ -196,7 +152,7 @@ PARAMS: dict[str, dict[str, Callable[[Any], Any]]] = {
     "random_bicycle": dict(_RANDOM_PARAMS),
     "drive": {
         "scenario": _scenario(("case-1", "case-2")),
-        "attentive": _optional(_choice(True, False), "as in the scenario"),
+        "attentive": _optional(Flag(), "as in the scenario"),
         "capture_rate": _num(0.0, 1000.0, lo_open=True, what=" frames/s"),
         "control_rate": _num(0.0, 1000.0, lo_open=True, what=" Hz"),
         "horizon": _int_ge(1),
@@ -207,7 +163,7 @@ PARAMS: dict[str, dict[str, Callable[[Any], Any]]] = {
         "position_noise": _num(0.0, 100.0, what=" m"),
         "velocity_noise": _num(0.0, 100.0, what=" m/s"),
         "deadline": _num(0.0, 3600.0, lo_open=True, what=" s"),
-        "state": _choice("perceived", "true"),
+        "state": OneOf("perceived", "true"),
         "pitch_sigma_deg": _num(0.0, 20.0, what=" deg"),
         # the bound is sim.driving.world.MAX_PERCEPTION_LATENCY, not imported here (specs load without the simulator)
         "perception_latency": _num(0.0, 5.0, what=" s (capture to the controller's estimates)"),
@@ -232,9 +188,7 @@ class RecordOptions:
     step_times: bool = False  # every step's wall time (ms) in the record; else only a histogram
 
     def __post_init__(self) -> None:
-        for name in ("check_relaxed", "step_times"):
-            if not isinstance(getattr(self, name), bool):
-                raise SpecError(f"record.{name}: expected true or false, got {getattr(self, name)!r}")
+        check_fields(self, Dotted("record"), SpecError)
 
 
 @dataclass(frozen=True)
@@ -266,24 +220,21 @@ class EpisodeTask:
 class SweepSpec:
     """One family with its fixed, grid and random parameters and its seeds."""
 
-    name: str
-    family: str
+    name: Annotated[str, _NAME]
+    family: Annotated[str, OneOf(*FAMILIES)]
     seeds: tuple[int, ...]
     fixed: Mapping[str, Any] = field(default_factory=dict)
     grid: tuple[tuple[str, tuple[Any, ...]], ...] = ()
     random: tuple[tuple[str, str, tuple[Any, ...]], ...] = ()  # (name, form, args)
-    random_points: int = 0
+    random_points: Annotated[int, Integer(0)] = 0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not _NAME.match(self.name):
-            raise SpecError(f"sweep name: expected letters, digits, '-', '_' or '.', got {self.name!r}")
-        if self.family not in FAMILIES:
-            raise SpecError(f"sweeps.{self.name}.family: expected one of {list(FAMILIES)}, got {self.family!r}")
+        check_fields(self, Dotted(f"sweeps.{self.name}"), SpecError)
         if not self.seeds:
-            raise SpecError(f"sweeps.{self.name}.seeds: expected at least one seed")
+            raise SpecError(f"sweeps.{self.name}.seeds must be at least one seed")
         if self.random and self.random_points < 1:
             raise SpecError(
-                f"sweeps.{self.name}.random_points: expected an integer >= 1 when parameters have random "
+                f"sweeps.{self.name}.random_points must be an integer >= 1 when parameters have random "
                 f"forms ({', '.join(n for n, _, _ in self.random)})"
             )
 
@@ -307,9 +258,8 @@ class SweepSpec:
         for combo in combos:
             for d in draws:
                 params = {**self.fixed, **dict(zip(names, combo, strict=True)), **d}
-                params = {
-                    k: _check_param(self.family, k, v, f"sweeps.{self.name}.params.{k}") for k, v in params.items()
-                }
+                where = Dotted(f"sweeps.{self.name}.params")
+                params = {k: _check_param(self.family, k, v, where) for k, v in params.items()}
                 ident = json.dumps({"family": self.family, "params": params, "record": record.__dict__}, sort_keys=True)
                 pid = hashlib.sha1(ident.encode()).hexdigest()[:10]
                 out.append(SweepPoint(self.name, len(out), self.family, params, pid))
@@ -320,27 +270,21 @@ class SweepSpec:
 class CampaignSpec:
     """A validated campaign: sweeps, the seed of random parameter draws, batch size, record options."""
 
-    name: str
+    name: Annotated[str, _NAME]
     sweeps: tuple[SweepSpec, ...]
-    seed: int = 0
-    batch: int | None = None  # episodes per Dask task; None: auto (see runner.auto_batch)
+    seed: Annotated[int, Integer(0)] = 0
+    batch: Annotated[int | None, Maybe(Integer(1, note=" (episodes per Dask task)"), none="auto")] = None
+    # batch None: auto (see runner.auto_batch)
     record: RecordOptions = field(default_factory=RecordOptions)
     source: Mapping[str, Any] = field(default_factory=dict, compare=False)  # the spec as loaded
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not _NAME.match(self.name):
-            raise SpecError(f"name: expected letters, digits, '-', '_' or '.', got {self.name!r}")
+        check_fields(self, Dotted(), SpecError)
         if not self.sweeps:
-            raise SpecError("sweeps: expected a non-empty list of sweeps")
+            raise SpecError("sweeps must be a non-empty list of sweeps")
         names = [s.name for s in self.sweeps]
         if len(set(names)) != len(names):
             raise SpecError(f"sweeps: names must be unique, got {names}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise SpecError(f"seed: expected an integer >= 0, got {self.seed!r}")
-        if self.batch is not None and (
-            isinstance(self.batch, bool) or not isinstance(self.batch, int) or self.batch < 1
-        ):
-            raise SpecError(f"batch: expected an integer >= 1 (episodes per Dask task) or auto, got {self.batch!r}")
 
     def points(self) -> list[SweepPoint]:
         return [p for s in self.sweeps for p in s.points(self.seed, self.record)]
@@ -359,80 +303,90 @@ class CampaignSpec:
 # ----------------------------------------------------------------------------------------------
 
 
-def _check_param(family: str, name: str, value: Any, where: str) -> Any:
-    checks = PARAMS[family]
-    if name not in checks:
-        raise SpecError(f"{where}: unknown parameter for family {family!r}; expected one of {sorted(checks)}")
+def _check_param(family: str, name: str, value: Any, where: Dotted, form: str = "") -> Any:
+    """``value`` checked by the rule of parameter ``name`` of ``family``; ``where``: the params
+    table; ``form``: the sweep form the value is in (``values``, ``linspace``, ...)."""
+    rules = PARAMS[family]
+    if name not in rules:
+        raise SpecError(check_keys({name: value}, rules, where, "parameter", f" for family {family!r}"))
     try:
-        return checks[name](value)
-    except _Bad as exc:
-        raise SpecError(f"{where}: expected {exc}, got {value!r}") from None
+        return rules[name](value)
+    except Invalid as exc:
+        raise SpecError(bad(where, f"{name}.{form}" if form else name, exc)) from None
 
 
-def _seeds(v: Any, where: str) -> tuple[int, ...]:
-    form = "an integer >= 1 (seeds 0..n-1), {start: s, count: n}, or a non-empty list of integers >= 0"
-    bad = SpecError(f"{where}: expected {form}, got {v!r}")
+_SEEDS = "an integer >= 1 (seeds 0..n-1), {start: s, count: n}, or a non-empty list of integers >= 0"
+
+
+def _seeds(v: Any, where: Dotted) -> tuple[int, ...]:
+    bad_seeds = SpecError(f"{where.key('seeds')} must be {_SEEDS}, got {v!r}")
     if isinstance(v, bool):
-        raise bad
+        raise bad_seeds
     if isinstance(v, int):
         if v < 1:
-            raise bad
+            raise bad_seeds
         return tuple(range(v))
     if isinstance(v, Mapping):
         if set(v) != {"start", "count"}:
-            raise bad
+            raise bad_seeds
         s, n = v["start"], v["count"]
         if any(isinstance(x, bool) or not isinstance(x, int) for x in (s, n)) or s < 0 or n < 1:
-            raise bad
+            raise bad_seeds
         return tuple(range(s, s + n))
     if isinstance(v, list) and v and all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in v):
         if len(set(v)) != len(v):
-            raise SpecError(f"{where}: seeds must be unique, got {v!r}")
+            raise SpecError(f"{where.key('seeds')}: seeds must be unique, got {v!r}")
         return tuple(v)
-    raise bad
+    raise bad_seeds
 
 
-def _sweep_from_dict(d: Any, i: int) -> SweepSpec:
-    where = f"sweeps[{i}]"
+_SWEEP_KEYS = ("name", "family", "seeds", "params", "random_points")
+_FORMS = ("a value or one sweep form {values: [..]}, {linspace: [lo, hi, n]}, {uniform: [lo, hi]}, "
+          "{randint: [lo, hi]} or {choice: [..]}")  # fmt: skip
+
+
+def _sweep_from_dict(d: Any, i: int, root: Dotted) -> SweepSpec:
+    where = root.sub(f"sweeps[{i}]")
     if not isinstance(d, Mapping):
-        raise SpecError(f"{where}: expected a mapping with name, family, seeds, params, got {d!r}")
-    unknown = set(d) - {"name", "family", "seeds", "params", "random_points"}
+        raise SpecError(f"{where.table} must be a mapping with name, family, seeds, params, got {d!r}")
+    unknown = check_keys(d, _SWEEP_KEYS, where)
     if unknown:
-        raise SpecError(f"{where}: unknown keys {sorted(unknown)}; expected name, family, seeds, params, random_points")
+        raise SpecError(unknown)
     for key in ("name", "family", "seeds"):
         if key not in d:
-            raise SpecError(f"{where}.{key}: missing (required)")
-    name, family = d["name"], d["family"]
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise SpecError(f"{where}.name: expected letters, digits, '-', '_' or '.', got {name!r}")
-    where = f"sweeps.{name}"
+            raise SpecError(f"missing key {key!r} in {where.table} (required)")
+    try:
+        name = _NAME(d["name"])
+    except Invalid as exc:
+        raise SpecError(bad(where, "name", exc)) from None
+    where = root.sub(f"sweeps.{name}")
+    family = d["family"]
     if family not in FAMILIES:
-        raise SpecError(f"{where}.family: expected one of {list(FAMILIES)}, got {family!r}")
-    seeds = _seeds(d["seeds"], f"{where}.seeds")
+        raise SpecError(bad(where, "family", Invalid(OneOf(*FAMILIES).expected, family)))
+    seeds = _seeds(d["seeds"], where)
     params = d.get("params") or {}
     if not isinstance(params, Mapping):
-        raise SpecError(f"{where}.params: expected a mapping of parameter names to values or sweep forms")
-    rp = d.get("random_points", 0)
-    if isinstance(rp, bool) or not isinstance(rp, int) or rp < 0:
-        raise SpecError(f"{where}.random_points: expected an integer >= 0, got {rp!r}")
+        raise SpecError(f"{where.key('params')} must be a mapping of parameter names to values or sweep forms")
+    try:
+        rp = Integer(0)(d.get("random_points", 0))
+    except Invalid as exc:
+        raise SpecError(bad(where, "random_points", exc)) from None
+    at = where.sub("params")
     fixed: dict[str, Any] = {}
     grid: list[tuple[str, tuple[Any, ...]]] = []
     random: list[tuple[str, str, tuple[Any, ...]]] = []
     for pname, v in params.items():
-        pw = f"{where}.params.{pname}"
         if not isinstance(v, Mapping):
-            fixed[pname] = _check_param(family, pname, v, pw)
+            fixed[pname] = _check_param(family, pname, v, at)
             continue
         if len(v) != 1 or next(iter(v)) not in _SWEEP_FORMS:
-            raise SpecError(
-                f"{pw}: expected a value or one sweep form {{values: [..]}}, {{linspace: [lo, hi, n]}}, "
-                f"{{uniform: [lo, hi]}}, {{randint: [lo, hi]}} or {{choice: [..]}}, got {dict(v)!r}"
-            )
+            raise SpecError(f"{at.key(pname)} must be {_FORMS}, got {dict(v)!r}")
         form, args = next(iter(v.items()))
+        pw = at.sub(pname)
         if form == "values" or form == "choice":
             if not isinstance(args, list) or not args:
-                raise SpecError(f"{pw}.{form}: expected a non-empty list of values, got {args!r}")
-            vals = tuple(_check_param(family, pname, x, f"{pw}.{form}") for x in args)
+                raise SpecError(f"{pw.key(form)} must be a non-empty list of values, got {args!r}")
+            vals = tuple(_check_param(family, pname, x, at, form) for x in args)
             if form == "values":
                 grid.append((pname, vals))
             else:
@@ -442,11 +396,11 @@ def _sweep_from_dict(d: Any, i: int) -> SweepSpec:
             ok = isinstance(args, list) and len(args) == 3 and isinstance(args[2], int) and args[2] >= 1
             ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) for x in args[:2])
             if not ok:
-                raise SpecError(f"{pw}.linspace: expected [low, high, count] with count an integer >= 1, got {args!r}")
+                raise SpecError(f"{pw.key(form)} must be [low, high, count] with count an integer >= 1, got {args!r}")
             vals = tuple(round(float(x), 9) for x in np.linspace(args[0], args[1], args[2]))
             if pname in _INT_PARAMS:
                 vals = tuple(round(x) for x in vals)
-            grid.append((pname, tuple(_check_param(family, pname, x, f"{pw}.linspace") for x in vals)))
+            grid.append((pname, tuple(_check_param(family, pname, x, at, form) for x in vals)))
             continue
         ok = isinstance(args, list) and len(args) == 2
         ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) for x in args) and args[0] <= args[1]
@@ -454,42 +408,56 @@ def _sweep_from_dict(d: Any, i: int) -> SweepSpec:
             ok = ok and all(isinstance(x, int) for x in args)
         if not ok:
             kind = "integers" if form == "randint" else "numbers"
-            raise SpecError(f"{pw}.{form}: expected [low, high] {kind} with low <= high, got {args!r}")
+            raise SpecError(f"{pw.key(form)} must be [low, high] {kind} with low <= high, got {args!r}")
         for x in args:
-            _check_param(family, pname, x, f"{pw}.{form}")
+            _check_param(family, pname, x, at, form)
         random.append((pname, form, tuple(args)))
-    have = set(params)
     for req in _REQUIRED.get(family, ()):
-        if req not in have:
-            raise SpecError(f"{where}.params.{req}: missing (required for family {family!r})")
+        if req not in params:
+            raise SpecError(f"missing key {req!r} in {at.table} (required for family {family!r})")
     return SweepSpec(name, family, seeds, fixed, tuple(grid), tuple(random), rp)
 
 
-def spec_from_dict(d: Any) -> CampaignSpec:
-    """Validate a loaded spec document (see the module docstring for the form)."""
+_TOP_KEYS = ("name", "description", "seed", "batch", "record", "sweeps")
+
+
+def spec_from_dict(d: Any, source: str = "") -> CampaignSpec:
+    """Validate a loaded spec document (see the module docstring for the form); ``source``: the
+    file it came from, named in every error."""
+    root = Dotted(file=source)
     if not isinstance(d, Mapping):
-        raise SpecError(f"spec: expected a mapping at the top level, got {type(d).__name__}")
-    unknown = set(d) - {"name", "seed", "batch", "record", "sweeps", "description"}
+        raise SpecError(f"{root.table} must be a mapping at the top level, got {type(d).__name__}")
+    unknown = check_keys(d, _TOP_KEYS, root)
     if unknown:
-        raise SpecError(
-            f"spec: unknown keys {sorted(unknown)}; expected name, description, seed, batch, record, sweeps"
-        )
+        raise SpecError(unknown)
     if "name" not in d:
-        raise SpecError("name: missing (required)")
+        raise SpecError(f"missing key 'name' in {root.table} (required)")
     rec = d.get("record") or {}
-    if not isinstance(rec, Mapping) or set(rec) - {"check_relaxed", "step_times"}:
-        raise SpecError(f"record: expected a mapping with check_relaxed and/or step_times (true/false), got {rec!r}")
+    if not isinstance(rec, Mapping):
+        raise SpecError(f"{root.key('record')} must be a mapping with check_relaxed and/or step_times, got {rec!r}")
     sweeps = d.get("sweeps")
     if not isinstance(sweeps, list) or not sweeps:
-        raise SpecError("sweeps: expected a non-empty list of sweeps (name, family, seeds, params)")
+        raise SpecError(f"{root.key('sweeps')} must be a non-empty list of sweeps (name, family, seeds, params)")
+    top = {k: d[k] for k in ("name", "seed") if k in d}
+    if d.get("batch", "auto") != "auto":
+        top["batch"] = d["batch"]
     return CampaignSpec(
-        name=d["name"],
-        sweeps=tuple(_sweep_from_dict(s, i) for i, s in enumerate(sweeps)),
-        seed=d.get("seed", 0),
-        batch=None if d.get("batch", "auto") == "auto" else d["batch"],
-        record=RecordOptions(**rec),
+        sweeps=tuple(_sweep_from_dict(s, i, root) for i, s in enumerate(sweeps)),
+        record=load(RecordOptions, rec, root.sub("record"), error=SpecError),
         source=dict(d),
+        **_checked(CampaignSpec, top, root),
     )
+
+
+def _checked(cls: type, values: dict[str, Any], where: Dotted) -> dict[str, Any]:
+    """``values`` of fields of ``cls``, each checked by its rule (the first refusal raised)."""
+    rules = rules_of(cls)
+    for key, value in values.items():
+        try:
+            rules[key](value)
+        except Invalid as exc:
+            raise SpecError(bad(where, key, exc)) from None
+    return values
 
 
 def load_spec(path: str | Path) -> CampaignSpec:
@@ -511,4 +479,4 @@ def load_spec(path: str | Path) -> CampaignSpec:
         raise
     except Exception as exc:  # parse errors of either format
         raise SpecError(f"spec {p}: cannot parse: {exc}") from None
-    return spec_from_dict(doc)
+    return spec_from_dict(doc, str(p))

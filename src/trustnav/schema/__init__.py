@@ -46,6 +46,7 @@ __all__ = [
     "SchemaError",
     "Seq",
     "Text",
+    "bad",
     "check_fields",
     "check_keys",
     "did_you_mean",
@@ -244,9 +245,9 @@ class Pair:
 
 @dataclass(frozen=True)
 class Seq:
-    """A list (or tuple) of items, each checked by ``item``, returned as a tuple; ``min_len``,
-    ``max_len``, ``unique``, ``ascending`` (each item >= the one before); ``what`` overrides the
-    expected form."""
+    """A list (or tuple) of items, each checked by ``item``, returned as a ``kind`` (tuple);
+    ``min_len``, ``max_len``, ``unique``, ``ascending`` (each item >= the one before); ``what``
+    overrides the expected form."""
 
     item: Rule
     min_len: int = 0
@@ -254,6 +255,7 @@ class Seq:
     unique: bool = False
     ascending: bool = False
     what: str = ""
+    kind: type = tuple
 
     @property
     def expected(self) -> str:
@@ -279,7 +281,7 @@ class Seq:
             raise Invalid(f"{self.expected}, no value twice", value)
         if self.ascending and any(b < a for a, b in itertools.pairwise(out)):
             raise Invalid(self.expected, value)
-        return tuple(out)
+        return self.kind(out)
 
 
 @dataclass(frozen=True)
@@ -369,21 +371,25 @@ class InFile:
 
 @dataclass(frozen=True)
 class Dotted:
-    """A field of a nested document by its dotted path (``sweeps.si.params.horizon``), as YAML
-    specs and Python objects name them; ``path`` empty: the top level (``seed``)."""
+    """A field of a nested document by its dotted path, as YAML specs and Python objects name
+    them: ``sweeps.si.params.horizon in spec.yaml`` (``file`` empty: ``sweeps.si.params.horizon``);
+    ``path`` empty: the top level."""
 
     path: str = ""
-    top: str = "the top level"
+    file: str = ""
 
     def key(self, k: str) -> str:
-        return f"{self.path}.{k}" if self.path else k
+        name = f"{self.path}.{k}" if self.path and not k.startswith("[") else f"{self.path}{k}"
+        return f"{name} in {self.file}" if self.file else name
 
     @property
     def table(self) -> str:
-        return self.path or self.top
+        if self.path:
+            return f"{self.path} in {self.file}" if self.file else self.path
+        return self.file or "the top level"
 
     def sub(self, name: str) -> Dotted:
-        return Dotted(self.key(name), self.top)
+        return Dotted(f"{self.path}.{name}" if self.path else name, self.file)
 
 
 def did_you_mean(key: str, known: Iterable[str]) -> str:
@@ -395,10 +401,14 @@ def did_you_mean(key: str, known: Iterable[str]) -> str:
     return "expected one of " + ", ".join(names) if names else "expected no keys"
 
 
-def check_keys(table: Mapping[str, Any], known: Iterable[str], place: Place, what: str = "key") -> list[str]:
-    """One line per key of ``table`` not in ``known``, each with the key meant."""
+def check_keys(
+    table: Mapping[str, Any], known: Iterable[str], place: Place, what: str = "key", of: str = ""
+) -> list[str]:
+    """One line per key of ``table`` not in ``known``, each with the key meant (``what``: "key",
+    "parameter"; ``of``: words after the key, " for family 'drive'")."""
     names = list(known)
-    return [f"unknown {what} {k!r} in {place.table}: {did_you_mean(str(k), names)}" for k in table if k not in names]
+    return [f"unknown {what} {k!r}{of} in {place.table}: {did_you_mean(str(k), names)}" for k in table
+            if k not in names]  # fmt: skip
 
 
 def bad(place: Place, k: str, exc: Invalid) -> str:
