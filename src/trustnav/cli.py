@@ -30,6 +30,8 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+from trustnav.schema import Integer, Invalid, Number
+
 __all__ = ["BOUNDS", "OutputFolder", "main"]
 
 ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json")
@@ -40,43 +42,41 @@ DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "fram
 #: The lowest camera rate at which ``drive --perception realtime`` is allowed (frames/s).
 REALTIME_MIN_RATE = 10.0
 
-#: option -> (type, low, high, low end open, unit): the documented range of every number an option
-#: takes (high None: no upper end). Rates and the CARLA timeout are bounded so that no run takes hours.
-BOUNDS: dict[str, tuple[type, float, float | None, bool, str]] = {
-    "seed": (int, 0, None, False, ""),
-    "rate": (float, 0, 60, True, " frames per second"),
-    "control_rate": (float, 1, 200, False, " steps per second"),
-    "fps": (float, 0, 240, True, " frames per second"),
-    "scan_frames": (int, 1, 100, False, ""),
-    "sharpen": (float, 0, 3, False, ""),
-    "max_frames": (int, 1, None, False, ""),
-    "max_seconds": (float, 0, None, True, " s"),
-    "open_timeout": (float, 0, 600, True, " s"),
-    "port": (int, 1, 65535, False, ""),
-    "timeout": (float, 0, 600, True, " s"),
-    "workers": (int, 1, 256, False, ""),
-    "batch": (int, 1, 10000, False, ""),
-    "camera_height": (float, 0.2, 20, False, " m"),
-    "fov": (float, 10, 170, False, " degrees"),
-    "pitch": (float, -45, 45, False, " degrees"),
-    "safety_radius": (float, 0, 20, True, " m"),
-    "horizon": (int, 1, 100, False, " steps"),
-    "v_max": (float, 0, 30, True, " m/s"),
-    "duration": (float, 0, 600, True, " s"),
-    "carla_fov": (float, 10, 170, False, " degrees"),
-    "search_seconds": (float, 0, 10, True, " s"),
-    "perception_latency": (float, 0, 5, False, " s"),  # sim.driving.world.MAX_PERCEPTION_LATENCY (lazy imports)
+#: option -> its rule (trustnav.schema): the documented range of every number an option takes. Rates
+#: and the CARLA timeout are bounded so that no run takes hours.
+BOUNDS: dict[str, Number | Integer] = {
+    "seed": Integer(0, whole_floats=True),
+    "rate": Number(0, 60, lo_open=True, unit=" frames per second"),
+    "control_rate": Number(1, 200, unit=" steps per second"),
+    "fps": Number(0, 240, lo_open=True, unit=" frames per second"),
+    "scan_frames": Integer(1, 100, whole_floats=True),
+    "sharpen": Number(0, 3),
+    "max_frames": Integer(1, whole_floats=True),
+    "max_seconds": Number(0, lo_open=True, unit=" s"),
+    "open_timeout": Number(0, 600, lo_open=True, unit=" s"),
+    "port": Integer(1, 65535, whole_floats=True),
+    "timeout": Number(0, 600, lo_open=True, unit=" s"),
+    "workers": Integer(1, 256, whole_floats=True),
+    "batch": Integer(1, 10000, whole_floats=True),
+    "camera_height": Number(0.2, 20, unit=" m"),
+    "fov": Number(10, 170, unit=" degrees"),
+    "pitch": Number(-45, 45, unit=" degrees"),
+    "safety_radius": Number(0, 20, lo_open=True, unit=" m"),
+    "horizon": Integer(1, 100, unit=" steps", whole_floats=True),
+    "v_max": Number(0, 30, lo_open=True, unit=" m/s"),
+    "duration": Number(0, 600, lo_open=True, unit=" s"),
+    "carla_fov": Number(10, 170, unit=" degrees"),
+    "search_seconds": Number(0, 10, lo_open=True, unit=" s"),
+    "perception_latency": Number(0, 5, unit=" s"),  # sim.driving.world.MAX_PERCEPTION_LATENCY (lazy imports)
 }
 
 
 def _range(dest: str) -> str:
     """The range of an option as its help text and its error give it: 'in (0, 60] frames per second'."""
-    kind, lo, hi, lo_open, unit = BOUNDS[dest]
-    if hi is None:
-        return f"{'an integer' if kind is int else 'a number'} {'>' if lo_open else '>='} {lo:g}{unit}"
-    if kind is int:
-        return f"an integer in [{lo:g}, {hi:g}]{unit}"
-    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]{unit}"
+    rule = BOUNDS[dest]
+    if isinstance(rule, Number) and math.isfinite(rule.lo) and math.isfinite(rule.hi):
+        return rule.bounds
+    return rule.expected
 
 
 def check_bounds(args: argparse.Namespace, *dests: str) -> None:
@@ -86,13 +86,11 @@ def check_bounds(args: argparse.Namespace, *dests: str) -> None:
         value = getattr(args, dest, None)
         if value is None:
             continue
-        kind, lo, hi, lo_open, _ = BOUNDS[dest]
-        ok = not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
-        ok = ok and (value == int(value) if kind is int else True)
-        ok = ok and (value > lo if lo_open else value >= lo) and (hi is None or value <= hi)
-        if not ok:
+        try:
+            BOUNDS[dest](value)
+        except Invalid:
             shown = f"{value:g}" if isinstance(value, float) else repr(value) if isinstance(value, str) else value
-            raise ValueError(f"--{dest.replace('_', '-')} must be {_range(dest)}, got {shown}")
+            raise ValueError(f"--{dest.replace('_', '-')} must be {_range(dest)}, got {shown}") from None
 
 
 # -- output folders written whole or not at all ----------------------------------------------------

@@ -113,6 +113,11 @@ class Number:
     def expected(self) -> str:
         return f"a {'finite ' if self.finite and not _bounded(self) else ''}number{_range(self)}{self.note}"
 
+    @property
+    def bounds(self) -> str:
+        """The range alone, as a help text gives it: "in (0, 60] frames per second", ">= 0 s"."""
+        return _range(self).strip()
+
     def __call__(self, value: Any) -> Any:
         if not _is_number(value) or math.isnan(value) or (self.finite and math.isinf(value)):
             raise Invalid(self.expected, value)
