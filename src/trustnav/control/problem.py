@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
 from trustnav.control import _qp
-from trustnav.control.barrier import TIMINGS, Barrier, PedestrianBarrier, Timing, cbf_rows
+from trustnav.control.barrier import TIMINGS, Barrier, Timing, cbf_rows
 from trustnav.control.costs import (
     Cost,
     LaneStage,
@@ -392,11 +392,6 @@ class MpcProblem:
             self.radii = np.full(n_p, self.config.safety_radius)
             self.r2 = np.ascontiguousarray(self.radii * self.radii)
             self._plain_radii = True
-
-    def pedestrian_barrier(self) -> PedestrianBarrier:
-        """The step's pedestrians as a :class:`PedestrianBarrier` (ego-centred coordinates; copies:
-        the next step may write the problem's arrays in place)."""
-        return PedestrianBarrier(self.peds.copy(), self.vels.copy(), self.one_minus_gamma.copy(), self.radii.copy())
 
     # ---- the linearised QP ----
     def build(self, u: NDArray[np.float64]) -> float:

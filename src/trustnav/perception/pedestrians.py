@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from trustnav.geometry.camera import CameraPose
-from trustnav.perception.localisation import GroundEstimate, GroundLocaliser, LocaliserConfig
+from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig
 from trustnav.perception.types import Person
 from trustnav.perception.world_tracking import TrackState, WorldTracker, WorldTrackerConfig
 from trustnav.trust import PAPER_TRUST, Observation, TrustEstimator, TrustParams
@@ -68,7 +68,6 @@ class PedestrianEstimator:
         self.localiser = localiser if isinstance(localiser, GroundLocaliser) else GroundLocaliser(localiser)
         self.tracker = tracker if isinstance(tracker, WorldTracker) else WorldTracker(tracker)
         self.trust = trust if isinstance(trust, TrustEstimator) else TrustEstimator(trust, keep_time=math.inf)
-        self.last_estimates: list[GroundEstimate | None] = []
 
     def update(
         self,
@@ -108,7 +107,6 @@ class PedestrianEstimator:
         live = {t.track_id for t in self.tracker.tracks}
         for tid in [t for t in self.trust.tracks if t not in live]:
             self.trust.forget(tid)  # the world tracker dropped it: its trust goes with it
-        self.last_estimates = estimates
         return ids
 
     def estimates(self, time: float) -> PedestrianEstimates:

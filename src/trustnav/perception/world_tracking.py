@@ -151,11 +151,6 @@ class WorldTrack:
     def covariance(self) -> NDArray[np.float64]:
         return _combine(self.means, self.covariances, self.probabilities)[1]
 
-    @property
-    def standing(self) -> float:
-        """Probability that the person stands (the IMM's standing model)."""
-        return float(self.probabilities[0])
-
 
 def _combine(means, covs, probs) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     mean = probs @ means

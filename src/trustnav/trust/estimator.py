@@ -56,7 +56,6 @@ class TrackState:
     steps: dict[str, TraitStep]
     score: float
     trust: float
-    first_seen: float
     last_seen: float
     observations: int = 1
 
@@ -155,7 +154,6 @@ class TrustEstimator:
                 steps=steps,
                 score=score,
                 trust=float(tr.trust_init(score, p)),
-                first_seen=obs.time,
                 last_seen=obs.time,
             )
             self._tracks[obs.track_id] = st
