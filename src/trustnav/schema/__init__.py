@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import itertools
 import math
 import numbers
@@ -384,7 +385,7 @@ class Dotted:
     file: str = ""
 
     def key(self, k: str) -> str:
-        name = f"{self.path}.{k}" if self.path and not k.startswith("[") else f"{self.path}{k}"
+        name = f"{self.path}.{k}" if self.path else k
         return f"{name} in {self.file}" if self.file else name
 
     @property
@@ -429,7 +430,6 @@ _PLAIN: dict[Any, Rule] = {
     bool: Flag(),
     str: Text(empty=True),
 }
-_RULES: dict[type, dict[str, Rule]] = {}  # per class, filled once (memo of a pure function)
 
 
 def _rule_of(hint: Any) -> Rule | None:
@@ -448,27 +448,24 @@ def _rule_of(hint: Any) -> Rule | None:
     return None
 
 
-def rules_of(cls: type) -> dict[str, Rule]:
+@functools.cache
+def rules_of(cls: type) -> Mapping[str, Rule]:
     """The rule of each field of dataclass ``cls`` that has one (from ``Annotated[..., rule]`` or
-    a plain ``float``/``int``/``bool``/``str``/``X | None``)."""
-    if cls not in _RULES:
-        hints = typing.get_type_hints(cls, include_extras=True)
-        rules = {}
-        for f in dataclasses.fields(cls):
-            r = _rule_of(hints.get(f.name))
-            if r is not None:
-                rules[f.name] = r
-        _RULES[cls] = rules
-    return _RULES[cls]
+    a plain ``float``/``int``/``bool``/``str``/``X | None``); read once per class."""
+    hints = typing.get_type_hints(cls, include_extras=True)
+    rules = {f.name: _rule_of(hints.get(f.name)) for f in dataclasses.fields(cls)}
+    return types.MappingProxyType({k: r for k, r in rules.items() if r is not None})
 
 
-def _nested(cls: type, name: str) -> type | None:
-    """The dataclass type of field ``name`` (also inside ``X | None``), else None."""
-    hint = typing.get_type_hints(cls).get(name)
-    for t in (hint, *get_args(hint)):
-        if isinstance(t, type) and dataclasses.is_dataclass(t):
-            return t
-    return None
+@functools.cache
+def _sections(cls: type) -> Mapping[str, type]:
+    """The fields of ``cls`` that hold a dataclass (also as ``X | None``): sections of a file."""
+    out = {}
+    for name, hint in typing.get_type_hints(cls).items():
+        for t in (hint, *get_args(hint)):
+            if isinstance(t, type) and dataclasses.is_dataclass(t):
+                out[name] = t
+    return types.MappingProxyType(out)
 
 
 def check_fields(obj: Any, place: Place | None = None, error: type[SchemaError] = SchemaError) -> None:
@@ -522,7 +519,7 @@ def load(
         try:
             if name in convert:
                 values[name] = convert[name](value, place.sub(key))
-            elif (sub := _nested(cls, name)) is not None and value is not None and not isinstance(value, sub):
+            elif (sub := _sections(cls).get(name)) is not None and value is not None and not isinstance(value, sub):
                 values[name] = load(sub, value, place.sub(key), error=error)
             elif name in rules:
                 values[name] = rules[name](value)
@@ -548,7 +545,7 @@ def load(
         raise error(errors)
     try:
         return cls(**values)
-    except SchemaError as exc:  # rules of a class without Annotated hints in this file (direct checks)
+    except SchemaError as exc:  # check_fields of a value a converter passed on unchecked
         raise error([f"{place.table}: {e}" for e in exc.errors]) from None
     except (ValueError, TypeError) as exc:
         raise error(f"{place.table}: {' '.join(str(exc).split())}") from None
