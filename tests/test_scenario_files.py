@@ -93,6 +93,18 @@ def test_bad_files_are_refused_naming_the_file_and_the_key(tmp_path, capsys, con
     assert not (tmp_path / "o").exists()
 
 
+def test_every_error_of_a_file_is_one_line_naming_file_section_and_key(tmp_path, capsys):
+    path = tmp_path / "kerb-gap.toml"
+    path.write_text(MINIMAL + "\n[control]\nhorizn = 5\ndt = 'fast'\n[road]\nlanes = 1.5\n")
+    code, out, err = _run(["drive", str(path), "--sensing", "keypoints", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and out == ""
+    assert err.splitlines() == [
+        f"trustnav: error: unknown key 'horizn' in [control] of {path}: did you mean 'horizon'?",
+        f"trustnav: error: dt in [control] of {path} must be a number > 0 s, got 'fast'",
+        f"trustnav: error: lanes in [road] of {path} must be an integer >= 1, got 1.5",
+    ]
+
+
 def test_a_folder_and_a_paper_scenario_are_refused(tmp_path, capsys):
     code, _, err = _run(["drive", str(tmp_path), "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and "is a folder" in err

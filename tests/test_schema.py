@@ -212,3 +212,18 @@ def test_a_misspelled_scenario_key_names_the_key_meant(tmp_path, drive_scenario,
         f"unknown key 'saftey_radius' in {paper}: did you mean 'safety_radius'?",
         f"unknown key 'trsut' in pedestrian 1 of {paper}: did you mean 'trust'?",
     )
+
+
+def test_every_one_typo_misspelling_of_a_scenario_key_names_the_key_meant():
+    """A dropped letter or two swapped neighbours in any key of three letters or more (two-letter keys
+    such as ``dt`` have too little to go on), in every section of the scenario files."""
+    from trustnav.geometry.camera import CameraSpec
+    from trustnav.trust import GammaParams
+
+    for cls in [*_scenario_classes(), CameraSpec, GammaParams]:
+        keys = [f.name for f in dataclasses.fields(cls)]
+        for k in (k for k in keys if len(k) >= 3):
+            typos = {k[:i] + k[i + 1 :] for i in range(len(k))}
+            typos |= {k[:i] + k[i + 1] + k[i] + k[i + 2 :] for i in range(len(k) - 1)}
+            for typo in typos - set(keys):
+                assert did_you_mean(typo, keys) == f"did you mean {k!r}?", (cls.__name__, typo)
