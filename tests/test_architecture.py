@@ -35,10 +35,11 @@ ALLOWED: dict[str, set[str]] = {
     "viz": set(),
     "geometry": set(),
     "schema": set(),
+    "progress": set(),  # the one progress report (trustnav/progress.py): bars and log lines
 }
 #: lower packages that every layer may use (the geometry package below perception and sim; the
 #: validation rules of trustnav.schema)
-BELOW_ALL = {"geometry", "schema"}
+BELOW_ALL = {"geometry", "schema", "progress"}
 ROOT_MODULE = "__init__"  # trustnav/__init__.py: imports nothing of ours (checked below)
 
 

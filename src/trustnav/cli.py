@@ -410,8 +410,6 @@ def _estimate(args: argparse.Namespace) -> int:
 
 def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_source) -> int:
     """The estimate command's input loop and tables (arguments already checked, inputs planned)."""
-    from tqdm import tqdm
-
     from trustnav.perception.face import FACE_FIELDS
     from trustnav.perception.frames import frame_count, iter_sequence, source_fps
     from trustnav.perception.live import frames_due
@@ -419,6 +417,7 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
     from trustnav.perception.phone import phone_label
     from trustnav.perception.pipeline import PerceptionPipeline, estimate
     from trustnav.perception.tracking import PersonTracker
+    from trustnav.progress import Progress
     from trustnav.trust.estimator import TrustEstimator
     from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST, SECONDS_TRUST
     from trustnav.viz.annotate import annotate
@@ -440,14 +439,15 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
         total = None if is_live else frame_count([f for s in sequences for f in s.files])
         if total is not None and args.max_frames is not None:
             total = min(total, args.max_frames)
-        bar = tqdm(total=total, unit="frame")
+        bar = Progress(total, "estimate", "frame")
 
         def report(res) -> None:
             counts["skipped"] += 1
-            tqdm.write(f"trustnav: skipped frame {res.name}: {res.error}", file=sys.stderr)
+            bar.write(f"trustnav: skipped frame {res.name}: {res.error}")
 
         main_thread = threading.current_thread() is threading.main_thread()
         old_term = signal.signal(signal.SIGTERM, _raise_interrupt) if main_thread else None
+        completed = False  # every sequence read to its end: the bar shows the run complete
         try:
             for seq in sequences:
                 live = live_source if seq.kind == "live" else None
@@ -467,7 +467,7 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
                     cues = with_face(default_cues(eye), face)
                     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), cues=cues)
                 images.start(seq, fps)
-                bar.set_description(seq.label[-30:])
+                bar.describe(seq.label[-30:])
                 law = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST, "moving-average": MOVING_AVERAGE_TRUST}
                 trust = TrustEstimator(law[args.trust])
                 t_first, written = None, 0  # live: capture time of the first frame, video frames written
@@ -500,18 +500,19 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
                             if args.show and _show(img, seq.label):
                                 raise KeyboardInterrupt  # q or Esc in the window: stop as Ctrl-C does
                 except TimeoutError as exc:  # a live stream that stopped sending: the end of that stream
-                    tqdm.write(f"trustnav: {exc}; stopping", file=sys.stderr)
+                    bar.write(f"trustnav: {exc}; stopping")
                 finally:
                     if live is not None:
                         counts["dropped"] += live.dropped
                         live.close()
+            completed = True
         except KeyboardInterrupt:
             interrupted = True
         finally:
             # the records are saved whatever happens; a second Ctrl-C must not cut this short
             old_int = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
             try:
-                bar.close()
+                bar.close(finished=completed)
                 images.close()
                 sink.close()
                 if hasattr(backend, "close"):
@@ -598,8 +599,7 @@ def _drive_runs(
     ``run_variant(scenario, attentive, progress) -> DriveResult`` drives one variant (default:
     trustnav's own world, :func:`trustnav.sim.driving.run_drive`; the CARLA bridge gives its own);
     ``label`` tags the world in titles ("CARLA")."""
-    from tqdm import tqdm
-
+    from trustnav.progress import step_reporter
     from trustnav.sim.driving import load_drive_scenario, make_render_sensing, run_drive
     from trustnav.viz.drive_plots import plot_distance, plot_top_view, write_drive_outputs
 
@@ -632,21 +632,8 @@ def _drive_runs(
     for tag, att in variants:
         where = out / tag if len(variants) > 1 else out
         desc = f"{case}{' ' + tag if tag else ''} ({where_tag}{sensing})"
-        bars: list = []  # made at the first progress report (after a world has opened)
-
-        def progress(t: float, _d: float, bars: list = bars, desc: str = desc) -> None:
-            if not bars:
-                bars.append(tqdm(total=sc.duration, desc=desc, unit="s",
-                                 bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]"))  # fmt: skip
-            bars[0].update(t - bars[0].n)
-
-        try:
+        with step_reporter(desc, sc.duration) as progress:  # the bar opens once the world has opened
             result = drive_one(sc, att, progress)  # type: ignore[operator]
-        finally:
-            for bar in bars:
-                bar.total = bar.n
-                bar.refresh()
-                bar.close()
         metrics = result.metrics()
         where.mkdir(parents=True, exist_ok=True)
         write_drive_outputs(result, where, video=video)
@@ -789,30 +776,16 @@ def _compare(args: argparse.Namespace) -> int:
     """``trustnav compare SCENARIO``: trust-aware beside constant trust 0 and 1 (one figure, a table)."""
     import csv
 
-    from tqdm import tqdm
-
+    from trustnav.progress import labelled_reporter
     from trustnav.sim.driving.compare import compare_trust, comparison_rows
     from trustnav.viz.drive_plots import plot_trust_comparison
 
     sc = _drive_scenario(args)
     stem = args.case if args.case in ("case-1", "case-2") else Path(args.case).stem
     folder = OutputFolder(args.out or f"out/compare-{stem}-{args.sensing}", args.overwrite, COMPARE_OUTPUTS)
-    bars: dict[str, tqdm] = {}
-
-    def progress(label: str, t: float, duration: float) -> None:
-        if label not in bars:
-            for b in bars.values():
-                b.close()
-            bars[label] = tqdm(total=duration, desc=f"{sc.name} {label}", unit="s", leave=False,
-                               bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]")  # fmt: skip
-        bars[label].update(t - bars[label].n)
-
-    try:
+    with labelled_reporter(sc.name, leave=False) as progress:
         comp = compare_trust(sc, sensing=args.sensing, seed=args.seed, attentive=args.attentive, capture_rate=args.rate,
                              control_rate=args.control_rate, state=args.state, progress=progress)  # fmt: skip
-    finally:
-        for b in bars.values():
-            b.close()
     rows = comparison_rows(comp)
     with folder:
         groups = [(v, [(r.mode, r.result) for r in runs]) for v, runs in comp.by_variant()]
@@ -909,27 +882,13 @@ def _demo_comparisons(result, seed: int, where: Path) -> dict[str, dict]:  # typ
     trust-aware run) and trust-aware in keypoint sensing (ideal landmarks); the top view and the
     distance plot redrawn with them beside the trust-aware run, their metrics added to
     metrics.json (``equal_trust``, ``keypoints_sensing``). Returns the three runs' metrics."""
-    from tqdm import tqdm
-
+    from trustnav.progress import step_reporter
     from trustnav.sim.driving import run_drive
     from trustnav.viz.drive_plots import plot_distance, plot_top_view
 
     sc = result.scenario
-    bars: list = []
-
-    def progress(t: float, _d: float) -> None:
-        if not bars:
-            bars.append(tqdm(total=sc.duration, desc=f"case-1 equal trust {DEMO_EQUAL_TRUST:g} (render)", unit="s",
-                             bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s sim [{elapsed}]"))  # fmt: skip
-        bars[0].update(t - bars[0].n)
-
-    try:
+    with step_reporter(f"case-1 equal trust {DEMO_EQUAL_TRUST:g} (render)", sc.duration) as progress:
         equal = _demo_drive(sc, seed, progress, equal_trust=DEMO_EQUAL_TRUST)
-    finally:
-        for bar in bars:
-            bar.total = bar.n
-            bar.refresh()
-            bar.close()
     keypoints = run_drive(sc, sensing="keypoints", seed=seed)
     label = f"equal trust {DEMO_EQUAL_TRUST:g}"
     plot_top_view(result, where / "top_view.png", comparisons=[(label, equal)],

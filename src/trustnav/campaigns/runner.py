@@ -12,7 +12,6 @@ import json
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 import uuid
@@ -25,6 +24,7 @@ from typing import Any
 from trustnav.campaigns.episodes import OUTCOME_FIELDS, record_head, run_batch
 from trustnav.campaigns.records import RecordStore
 from trustnav.campaigns.spec import CampaignSpec, EpisodeTask
+from trustnav.progress import Progress
 
 __all__ = ["CAMPAIGN_FILES", "CampaignFolderError", "RunReport", "auto_batch", "check_campaign_folder", "dask_client",
            "run_campaign"]  # fmt: skip
@@ -257,18 +257,10 @@ def run_campaign(
     t0 = time.perf_counter()
     if todo:
         from distributed import as_completed
-        from tqdm import tqdm
 
         run_id = uuid.uuid4().hex[:8]
 
-        bar = tqdm(
-            total=len(todo),
-            unit="ep",
-            desc=spec.name,
-            file=sys.stderr,
-            disable=None if progress else True,
-            smoothing=0.05,
-        )
+        bar = Progress(len(todo), spec.name, "ep", enabled=progress)  # a log line every few s off a terminal
         with dask_client(scheduler, workers) as client, store:
             n_workers = len(client.scheduler_info().get("workers", {}))
             size = size or auto_batch(len(todo), n_workers)
@@ -289,10 +281,10 @@ def run_campaign(
                         if on_record is not None:
                             on_record(rec)
                     bar.update(len(recs))
-                    bar.set_postfix(failed=failed, refresh=False)
+                    bar.note(failed=failed)
                     fut.release()
             finally:
-                bar.close()
+                bar.close(finished=bar.n >= len(todo))
                 client.cancel(futures)
     return RunReport(
         episodes=len(tasks),

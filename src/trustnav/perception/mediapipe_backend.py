@@ -358,6 +358,8 @@ class _Graphs:
 
             with quiet_stderr(), quiet_environment(), protobuf_warning_ignored():
                 self.segmenter = mediapipe.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0)
+                # its TFLite model logs a warning (inference_feedback_manager) on the first frame: start it here
+                self.segmenter.process(np.zeros((64, 64, 3), dtype=np.uint8))
         x0, y0, x1, y1 = window
         return self.segmenter.process(np.ascontiguousarray(frame[y0:y1, x0:x1])).segmentation_mask
 

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from trustnav.viz import style
 
-__all__ = ["SKELETON", "annotate", "place_labels", "trust_colour"]
+__all__ = ["SKELETON", "annotate", "label_rects", "place_labels", "trust_colour"]
 
 # COCO 17 limbs
 SKELETON: tuple[tuple[int, int], ...] = (
@@ -70,6 +70,33 @@ def place_labels(boxes: Sequence[Rect], sizes: Sequence[tuple[int, int]], width:
     return [r for r in placed if r is not None]
 
 
+def _label_layout(
+    shape: tuple[int, ...], records: Sequence[dict], phone_labels: Sequence[str]
+) -> tuple[list[tuple[str, int, int]], list[Rect], int, float]:
+    """Per person (text, text baseline, chip width) and the label's rectangle, with the line
+    thickness and font size of a frame of ``shape``."""
+    import cv2
+
+    scale = max(1.0, shape[0] / 480)
+    thick = max(1, round(scale))
+    size = 0.4 * scale
+    texts, boxes, sizes = [], [], []
+    for rec, label in zip(records, phone_labels, strict=True):
+        text = f"{rec.get('name', rec['track_id'])} {rec['trust']:.2f} {label}"
+        (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
+        chip = th + base + 3 if rec.get("colour") is not None else 0
+        boxes.append(tuple(round(v) for v in rec["bbox"][:4]))
+        texts.append((text, base, chip))
+        sizes.append((tw + 4 + chip, th + base + 3))
+    return texts, place_labels(boxes, sizes, shape[1], shape[0]), thick, size  # type: ignore[arg-type]
+
+
+def label_rects(shape: tuple[int, ...], records: Sequence[dict], phone_labels: Sequence[str]) -> list[Rect]:
+    """Where :func:`annotate` puts each person's label on a frame of ``shape`` (x1, y1, x2, y2 px),
+    in the order of ``records``: e.g. to crop a frame without cutting a label."""
+    return _label_layout(shape, records, phone_labels)[1]
+
+
 def annotate(
     frame_rgb: NDArray[np.uint8],
     records: Sequence[dict],
@@ -84,11 +111,8 @@ def annotate(
     import cv2
 
     img = cv2.cvtColor(frame_rgb, cv2.COLOR_RGB2BGR)
-    scale = max(1.0, img.shape[0] / 480)
-    thick = max(1, round(scale))
-    size = 0.4 * scale
-    boxes, texts, sizes = [], [], []
-    for rec, kp, label in zip(records, keypoints, phone_labels, strict=True):
+    texts, rects, thick, size = _label_layout(img.shape, records, phone_labels)
+    for rec, kp in zip(records, keypoints, strict=True):
         x1, y1, x2, y2 = (round(v) for v in rec["bbox"])
         colour = trust_colour(rec["trust"])
         eye = _eye_colour(rec["eye_contact"] if rec["eye_contact"] is not None else 0.0)
@@ -97,16 +121,9 @@ def annotate(
             if np.isfinite(pa).all() and np.isfinite(pb).all():
                 cv2.line(img, (round(pa[0]), round(pa[1])), (round(pb[0]), round(pb[1])), eye, thick, cv2.LINE_AA)
         cv2.rectangle(img, (x1, y1), (x2, y2), colour, thick + 1)
-        text = f"{rec.get('name', rec['track_id'])} {rec['trust']:.2f} {label}"
-        (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
-        chip = th + base + 3 if rec.get("colour") is not None else 0
-        boxes.append((x1, y1, x2, y2))
-        texts.append((text, colour, base, chip, rec.get("colour")))
-        sizes.append((tw + 4 + chip, th + base + 3))
     # labels last, over every box and skeleton, each at a free place near its own box
-    for (text, colour, base, chip, person), (lx1, ly1, lx2, ly2) in zip(
-        texts, place_labels(boxes, sizes, img.shape[1], img.shape[0]), strict=True
-    ):
+    for rec, (text, base, chip), (lx1, ly1, lx2, ly2) in zip(records, texts, rects, strict=True):
+        colour, person = trust_colour(rec["trust"]), rec.get("colour")
         cv2.rectangle(img, (lx1, ly1), (lx2, ly2), colour, -1)
         if chip:
             cv2.rectangle(img, (lx1, ly1), (lx1 + chip - 1, ly2), tuple(int(c) for c in person), -1)

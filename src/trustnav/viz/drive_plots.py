@@ -167,6 +167,7 @@ def plot_top_view(
     sensing = f"{r0.sensing} sensing" + (f", camera {r0.capture_rate:g} frame/s" if r0.frames else "")
     sensing += _latency_note(r0)
     ax.set_title(f"top view to scale ({sensing}); rings: R = {radius:g} m at the closest approach")
+    style.separate_coincident(ax)
     style.legend(ax, loc="lower left", ncol=3, fontsize=7.5)
 
     # -- lateral offset, magnified
@@ -193,6 +194,7 @@ def plot_top_view(
     ax_off.set_xlabel("map y (m), driving direction →")
     ax_off.set_ylabel("offset from lane centre (m)")
     ax_off.set_title("the path's offset from the lane centre (vertical scale magnified)")
+    style.separate_coincident(ax_off)
     style.legend(ax_off)
 
     # -- the camera frame
@@ -201,24 +203,28 @@ def plot_top_view(
         assert k is not None
         ax_cam = fig.add_subplot(gs[1, 1])
         f = r0.frames[k]
-        ax_cam.imshow(np.ascontiguousarray(_crop_to_people(cams[k], [s.person.bbox for s in f.sensed])[..., ::-1]))
+        from trustnav.viz.annotate import label_rects
+
+        recs, _, labels = _frame_records(f)
+        shown = [r["bbox"] for r in recs] + [list(b) for b in label_rects(cams[k].shape, recs, labels)]
+        ax_cam.imshow(np.ascontiguousarray(_crop_to_people(cams[k], shown)[..., ::-1]))
         ax_cam.set_axis_off()
-        ax_cam.set_title(f"camera at t = {f.time:.0f} s: box colour = trust,\nchip = pedestrian, "
-                         "skeleton = eye contact (red none, green full)", fontsize=8)  # fmt: skip
+        ax_cam.set_title(f"camera at t = {f.time:.0f} s: label = perception's track # and trust\n(box colour: "
+                         "trust), chip = pedestrian, skeleton = eye contact", fontsize=8)  # fmt: skip
     fig.suptitle(title or sc.title)
     return style.save(fig, path)
 
 
-def _crop_to_people(img: NDArray[np.uint8], boxes: Sequence[NDArray]) -> NDArray[np.uint8]:
-    """The part of a camera frame around its people (boxes [x1, y1, x2, y2] px) and their labels, at
-    the frame's aspect ratio and at least 45 % of its width, so that the labels stay readable when
-    the frame is drawn small."""
+def _crop_to_people(img: NDArray[np.uint8], boxes: Sequence[Any]) -> NDArray[np.uint8]:
+    """The part of a camera frame around its people and their labels (boxes [x1, y1, x2, y2] px:
+    give both, every label whole inside), at the frame's aspect ratio and at least 45 % of its
+    width, so that the labels stay readable when the frame is drawn small."""
     h, w = img.shape[:2]
     if not boxes:
         return img
     b = np.array([np.asarray(x, dtype=float)[:4] for x in boxes])
-    pad = 0.1 * w  # room for the labels beside and above the boxes
-    x1, y1, x2, y2 = b[:, 0].min() - pad, b[:, 1].min() - 0.1 * h, b[:, 2].max() + pad, b[:, 3].max() + 0.05 * h
+    pad = 0.02 * w  # a margin round the people and their labels
+    x1, y1, x2, y2 = b[:, 0].min() - pad, b[:, 1].min() - 0.05 * h, b[:, 2].max() + pad, b[:, 3].max() + 0.05 * h
     cw = min(float(w), max(0.45 * w, x2 - x1, (y2 - y1) * w / h))
     ch = cw * h / w
     cx = min(max((x1 + x2) / 2, cw / 2), w - cw / 2)
@@ -305,6 +311,7 @@ def plot_distance(
     ax.set_xlabel("time (s)")
     ax.set_ylabel("distance to pedestrian (m)")
     ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians")
+    style.separate_coincident(ax)
     style.legend(ax, loc="lower left")  # before the approach: nothing there
     return style.save(fig, path)
 
@@ -359,6 +366,7 @@ def plot_trust_comparison(
         ax.set_ylabel("map x (m), magnified")
         ax.set_title(f"{gname + ': ' if gname else ''}paths (across the road magnified; rings: R = {radius:g} m "
                      "at the trust-aware closest approach)", fontsize=9)  # fmt: skip
+        style.separate_coincident(ax)
         style.legend(ax, loc="lower left", ncol=2, fontsize=7)
         for k, (label, r) in enumerate(runs):
             ls, _ = _MODES[k % len(_MODES)]
@@ -373,6 +381,7 @@ def plot_trust_comparison(
         ax_d.set_xlabel("time (s)")
         ax_d.set_ylabel("distance to pedestrian (m)")
         ax_d.set_title(f"{gname + ': ' if gname else ''}distance to each pedestrian")
+        style.separate_coincident(ax_d)
         ax_d.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=True, fontsize=6.5)
     fig.suptitle(title or f"{sc.title}: trust-aware vs trust-blind ({r0.sensing} sensing, seed {r0.seed})")
     return style.save(fig, path)
@@ -411,31 +420,37 @@ def _backdrop(result: DriveResult, frame: FrameReport) -> NDArray[np.uint8]:
     return img
 
 
+def _frame_records(f: FrameReport) -> tuple[list[dict], list[NDArray[np.float64]], list[str]]:
+    """A frame's people as :func:`trustnav.viz.annotate.annotate` takes them: labelled with what
+    perception made of them (its track id ``#k`` and the track's trust), the chip in the colour of
+    the pedestrian each is (the colour that links it to the other figures)."""
+    recs, kps, labels = [], [], []
+    for s in f.sensed:
+        j = s.index  # the world pedestrian it is (None: a detection of nobody)
+        trust = getattr(s, "trust", None)  # the trust of the track it joined, where known
+        if trust is None and j is not None:
+            trust = f.views[j].trust
+        rec = {"bbox": [float(x) for x in s.person.bbox], "trust": float(trust or 0.0),
+               "eye_contact": s.eye_contact, "track_id": s.track_id, "name": f"#{s.track_id}"}  # fmt: skip
+        if j is not None:
+            rec["colour"] = style.person_bgr(j)
+        recs.append(rec)
+        kps.append(s.person.keypoints)
+        labels.append(s.phone_label)
+    return recs, kps, labels
+
+
 def annotated_frames(result: DriveResult) -> list[NDArray[np.uint8]]:
     """Each captured frame annotated with trustnav.viz.annotate (BGR): box coloured by trust with
-    'pedestrian trust phone' and a chip in the pedestrian's colour, skeleton coloured by eye
-    contact; plus the time."""
+    perception's '#track trust phone' and a chip in the pedestrian's colour, skeleton coloured by
+    eye contact; plus the time."""
     import cv2
 
     from trustnav.viz.annotate import annotate
 
-    names = [p.name for p in result.scenario.pedestrians]
     out = []
     for f in result.frames:
-        recs, kps, labels = [], [], []
-        for s in f.sensed:
-            j = s.index  # the world pedestrian it is (None: a detection of nobody)
-            trust = getattr(s, "trust", None)  # the trust of the track it joined, where known
-            if trust is None and j is not None:
-                trust = f.views[j].trust
-            rec = {"bbox": [float(x) for x in s.person.bbox], "trust": float(trust or 0.0),
-                   "eye_contact": s.eye_contact, "track_id": s.track_id}  # fmt: skip
-            if j is not None:
-                rec.update(name=names[j], colour=style.person_bgr(j))
-            recs.append(rec)
-            kps.append(s.person.keypoints)
-            labels.append(s.phone_label)
-        img = annotate(_backdrop(result, f), recs, kps, labels)
+        img = annotate(_backdrop(result, f), *_frame_records(f))
         text = f"frame {f.index}  t = {f.time:.1f} s  detected {f.detections}/{f.ground_truth}"
         cv2.putText(img, text, (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 0, 0), 4, cv2.LINE_AA)
         cv2.putText(img, text, (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 255, 255), 2, cv2.LINE_AA)

@@ -23,6 +23,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = [
     "BASELINE_COLOUR",
     "DPI",
@@ -139,6 +141,32 @@ def new_figure(
 def legend(ax: Any, loc: str = "best", **kw: Any) -> Any:
     """A legend inside the axes (framed, so it stays readable over data)."""
     return ax.legend(loc=loc, frameon=True, **kw)
+
+
+def separate_coincident(ax: Any, rtol: float = 2e-3) -> list[tuple[str, str]]:
+    """Make lines drawn over an earlier one visible: a line with the same points as an earlier line
+    (within ``rtol`` of the axes' span) is drawn with dashes that alternate with the earlier one's
+    (both at the earlier's width) and its legend label says so (``(same curve as attentive, equal
+    trust 1)``). Call before the legend; returns the (earlier, later) labels of the pairs found."""
+    lines = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 1 and ln.get_transform() == ax.transData]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    span = np.array([abs(x1 - x0) or 1.0, abs(y1 - y0) or 1.0])
+    pairs: list[tuple[str, str]] = []
+    for i, b in enumerate(lines):
+        pb = np.column_stack([b.get_xdata(), b.get_ydata()]).astype(float)
+        for a in lines[:i]:
+            pa = np.column_stack([a.get_xdata(), a.get_ydata()]).astype(float)
+            if pa.shape != pb.shape or not np.all(np.abs(pa - pb) <= rtol * span):
+                continue
+            dash = 4.0
+            a.set_linestyle((0.0, (dash, dash)))
+            b.set_linestyle((dash, (dash, dash)))
+            b.set_linewidth(a.get_linewidth())
+            first = a.get_label().split(":")[0]
+            b.set_label(f"{b.get_label()} (same curve as {first}; dashes alternate)")
+            pairs.append((a.get_label(), b.get_label()))
+            break
+    return pairs
 
 
 def integer_ticks(axis: Any, values: Sequence[float] | None = None) -> None:
