@@ -157,24 +157,56 @@ def _safe_label(source: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", source.split("://", 1)[-1]).strip("_")[:60] or "stream"
 
 
+class _Descriptor2:
+    """File descriptor 2 pointed at /dev/null while any thread is inside :func:`quiet_stderr`: the
+    first thread in saves it, the last one out restores it. Descriptor 2 is the process's, so the
+    count is too; without it two threads overlapping (MediaPipe's workers starting their graphs)
+    could restore each other's /dev/null and lose every later message of the run."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self.lock = threading.Lock()
+        self.depth = 0
+        self.saved: int | None = None
+
+    def enter(self) -> None:
+        with self.lock:
+            if self.depth == 0:
+                with contextlib.suppress(AttributeError, OSError, ValueError):
+                    sys.stderr.flush()
+                try:
+                    saved = os.dup(2)
+                except OSError:  # no descriptor 2: nothing to silence
+                    saved = None
+                if saved is not None:
+                    with open(os.devnull, "w") as null:
+                        os.dup2(null.fileno(), 2)
+                self.saved = saved
+            self.depth += 1
+
+    def leave(self) -> None:
+        with self.lock:
+            self.depth -= 1
+            if self.depth == 0 and self.saved is not None:
+                os.dup2(self.saved, 2)
+                os.close(self.saved)
+                self.saved = None
+
+
+_FD2 = _Descriptor2()
+
+
 @contextlib.contextmanager
 def quiet_stderr() -> Iterator[None]:
-    """Silence messages that C libraries (FFmpeg, libjpeg) write straight to file descriptor 2."""
-    fd = 2  # the C libraries write to the descriptor, whatever Python's sys.stderr is
-    with contextlib.suppress(AttributeError, OSError, ValueError):
-        sys.stderr.flush()
+    """Silence messages that C libraries (FFmpeg, libjpeg, MediaPipe's TFLite) write straight to file
+    descriptor 2, whatever Python's sys.stderr is; safe when threads overlap (the last one out
+    restores the descriptor)."""
+    _FD2.enter()
     try:
-        saved = os.dup(fd)
-    except OSError:  # no descriptor 2: nothing to silence
         yield
-        return
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), fd)
-            yield
     finally:
-        os.dup2(saved, fd)
-        os.close(saved)
+        _FD2.leave()
 
 
 def _video_property(path: Path, prop: str) -> float:
