@@ -44,6 +44,15 @@ trust_rgb = style.trust_colour
 
 # map colours, as the video's top view (trustnav.sim.driving.topview)
 _SURROUND, _SIDEWALK, _ROAD = "#dfe9d8", "#e9e4da", "#c8c8c8"
+
+
+def _outlined() -> list[Any]:
+    """Path effects of the white lane centre: outlined, so that it shows in the legend too."""
+    from matplotlib import patheffects
+
+    return [patheffects.withStroke(linewidth=2.4, foreground="0.55"), patheffects.Normal()]
+
+
 # comparison runs: line style and colour, in the order given
 _COMPARE = (("--", style.BASELINE_COLOUR), (":", "#444444"), ("-.", "#6b6b6b"))
 
@@ -133,7 +142,8 @@ def plot_top_view(
     ax.fill(*_yx(road), color=_ROAD, zorder=0)
     for w in walks:
         ax.fill(*_yx(w), color=_SIDEWALK, zorder=0)
-    ax.plot(*_yx(np.array([sc.ego_start, sc.goal])), color="white", ls=(0, (6, 4)), lw=1.2, zorder=1)
+    ax.plot(*_yx(np.array([sc.ego_start, sc.goal])), color="white", ls=(0, (6, 4)), lw=1.2, zorder=1,
+            label="lane centre", path_effects=_outlined())  # fmt: skip
     runs = [(k, r, "-", style.EGO_COLOUR if k == 0 else "#0057b8") for k, r in enumerate(rs)]
     runs += [(len(rs) + k, r, *_COMPARE[k % len(_COMPARE)]) for k, (_, r) in enumerate(comparisons)]
     tags = [_variant(r) + " run" if len(rs) > 1 else "trust-aware" for r in rs] + [lab for lab, _ in comparisons]
@@ -188,7 +198,7 @@ def plot_top_view(
         ax_off.axvline(p.position[1], color=c, ls=":", lw=1.2)
         ax_off.text(p.position[1], 0.93 * lim * np.sign(side or 1.0), f" {p.name} side",
                     color=c, ha="left", va="top" if side > 0 else "bottom")  # fmt: skip
-    ax_off.axhline(0.0, color="0.5", lw=0.8)
+    ax_off.axhline(0.0, color="0.5", lw=0.8, label="lane centre")
     ax_off.set_ylim(-lim, lim)
     ax_off.set_xlim(x_left, x_right)
     ax_off.set_xlabel("map y (m), driving direction →")
@@ -215,13 +225,13 @@ def plot_top_view(
     return style.save(fig, path)
 
 
-def _crop_to_people(img: NDArray[np.uint8], boxes: Sequence[Any]) -> NDArray[np.uint8]:
-    """The part of a camera frame around its people and their labels (boxes [x1, y1, x2, y2] px:
-    give both, every label whole inside), at the frame's aspect ratio and at least 45 % of its
-    width, so that the labels stay readable when the frame is drawn small."""
-    h, w = img.shape[:2]
+def _crop_window(shape: tuple[int, ...], boxes: Sequence[Any]) -> tuple[int, int, int, int]:
+    """(x0, y0, width, height) px of the part of a frame of ``shape`` round ``boxes`` ([x1, y1, x2,
+    y2] px: the people and their labels, every one whole inside), at the frame's aspect ratio and
+    at least 45 % of its width, so that the labels stay readable when the frame is drawn small."""
+    h, w = shape[:2]
     if not boxes:
-        return img
+        return 0, 0, w, h
     b = np.array([np.asarray(x, dtype=float)[:4] for x in boxes])
     pad = 0.02 * w  # a margin round the people and their labels
     x1, y1, x2, y2 = b[:, 0].min() - pad, b[:, 1].min() - 0.05 * h, b[:, 2].max() + pad, b[:, 3].max() + 0.05 * h
@@ -229,8 +239,14 @@ def _crop_to_people(img: NDArray[np.uint8], boxes: Sequence[Any]) -> NDArray[np.
     ch = cw * h / w
     cx = min(max((x1 + x2) / 2, cw / 2), w - cw / 2)
     cy = min(max((y1 + y2) / 2, ch / 2), h - ch / 2)
-    u0, v0 = round(cx - cw / 2), round(cy - ch / 2)
-    return img[v0 : v0 + round(ch), u0 : u0 + round(cw)]
+    u0, v0 = max(0, int(np.floor(cx - cw / 2))), max(0, int(np.floor(cy - ch / 2)))
+    return u0, v0, min(w - u0, int(np.ceil(cw)) + 1), min(h - v0, int(np.ceil(ch)) + 1)
+
+
+def _crop_to_people(img: NDArray[np.uint8], boxes: Sequence[Any]) -> NDArray[np.uint8]:
+    """The part of a camera frame round its people and their labels (:func:`_crop_window`)."""
+    u0, v0, cw, ch = _crop_window(img.shape, boxes)
+    return img[v0 : v0 + ch, u0 : u0 + cw]
 
 
 def _pedestrian_on_map(
@@ -345,19 +361,20 @@ def plot_trust_comparison(
         ax.fill(*_yx(road), color=_ROAD, zorder=0)
         for w in walks:
             ax.fill(*_yx(w), color=_SIDEWALK, zorder=0)
-        ax.plot(*_yx(np.array([sc.ego_start, sc.goal])), color="white", ls=(0, (6, 4)), lw=1.0, zorder=1)
+        ax.plot(*_yx(np.array([sc.ego_start, sc.goal])), color="white", ls=(0, (6, 4)), lw=1.0, zorder=1,
+                label="lane centre", path_effects=_outlined())  # fmt: skip
         for k, (label, r) in enumerate(runs):
             ls, colour = _MODES[k % len(_MODES)]
             ax.plot(*_yx(r.ego[:, :2]), ls=ls, color=colour, lw=2.0 if k == 0 else 1.6, zorder=3, label=label)
         for j, ped in enumerate(first.scenario.pedestrians):
             c = style.person_colour(j)
             if np.linalg.norm(first.pedestrians[-1, j] - first.pedestrians[0, j]) > 0.05:
-                ax.plot(*_yx(first.pedestrians[:, j]), color=c, lw=1.3, zorder=2)
+                ax.plot(*_yx(first.pedestrians[:, j]), color=c, lw=1.3, zorder=2, label=f"{ped.name}'s walk")
             q = first.pedestrians[int(np.argmin(first.distances[:, j])), j]
             ax.add_patch(Circle(_yx(q), radius, fill=False, ls="--", color=c, lw=1.2, zorder=4))
             ax.plot(*_yx(q), "o", color=c, ms=7, mec="k", zorder=6,
                     label=style.person_label(ped.name, ped.attentive))  # fmt: skip
-        ax.plot(*_yx(np.array(sc.goal)), marker="*", ms=12, color="gold", mec="k", zorder=5, ls="")
+        ax.plot(*_yx(np.array(sc.goal)), marker="*", ms=12, color="gold", mec="k", zorder=5, ls="", label="goal")
         ys = np.concatenate([r.ego[:, 1] for _, r in runs])
         ax.set_xlim(max(ys.max(), sc.ego_start[1]) + 2, min(ys.min(), sc.goal[1]) - 2)
         xs = np.array([sc.ego_start[0], sc.goal[0], *[p.position[0] for p in sc.pedestrians]])

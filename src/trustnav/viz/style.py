@@ -146,8 +146,8 @@ def legend(ax: Any, loc: str = "best", **kw: Any) -> Any:
 def separate_coincident(ax: Any, rtol: float = 2e-3) -> list[tuple[str, str]]:
     """Make lines drawn over an earlier one visible: a line with the same points as an earlier line
     (within ``rtol`` of the axes' span) is drawn with dashes that alternate with the earlier one's
-    (both at the earlier's width) and its legend label says so (``(same curve as attentive, equal
-    trust 1)``). Call before the legend; returns the (earlier, later) labels of the pairs found."""
+    (both at the earlier's width) and its legend label says so (``(same curve as attentive)``).
+    Call before the legend; returns the (earlier, later) labels of the pairs found."""
     lines = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 1 and ln.get_transform() == ax.transData]
     (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
     span = np.array([abs(x1 - x0) or 1.0, abs(y1 - y0) or 1.0])
@@ -162,8 +162,8 @@ def separate_coincident(ax: Any, rtol: float = 2e-3) -> list[tuple[str, str]]:
             a.set_linestyle((0.0, (dash, dash)))
             b.set_linestyle((dash, (dash, dash)))
             b.set_linewidth(a.get_linewidth())
-            first = a.get_label().split(":")[0]
-            b.set_label(f"{b.get_label()} (same curve as {first}; dashes alternate)")
+            first = a.get_label().split(":")[0].split(",")[0]
+            b.set_label(f"{b.get_label()} (same curve as {first})")
             pairs.append((a.get_label(), b.get_label()))
             break
     return pairs
