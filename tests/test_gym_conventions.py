@@ -133,3 +133,18 @@ def test_a_random_policy_episode_ends_for_a_reported_reason():
         seen.add(info["reason"])
         assert steps <= env.sim.max_steps
     assert seen <= {"collision", "off_road", "goal", "time"}
+
+
+def test_config_checked_by_the_schema_every_error_one_line_and_the_key_meant():
+    """The environment's configuration goes through trustnav.schema like scenario files and specs."""
+    with pytest.raises(ValueError) as err:
+        DriveEnv(config={"contact_radus": 1.0})
+    assert str(err.value) == "unknown key 'contact_radus' in config: did you mean 'contact_radius'?"
+    with pytest.raises(ValueError) as err:
+        DriveEnv(config={"max_pedestrians": 0, "sensing": "lidar", "capture_rate": 0, "scenario": 3})
+    assert str(err.value).splitlines() == [  # all at once, in the order of the keys
+        "config.scenario must be a name, a .toml path or a DriveScenario, got 3",
+        "config.sensing must be one of 'keypoints', 'render', got 'lidar'",
+        "config.capture_rate must be a number in [0.001, 1000] frames/s or None, got 0",
+        "config.max_pedestrians must be an integer in [1, 256], got 0",
+    ]

@@ -47,16 +47,16 @@ sensing, else the top view), RGB; ``render_fn(result) -> RGB`` replaces it (e.g.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from trustnav.schema import Dotted, Flag, Integer, Maybe, Number, OneOf, SchemaError, check_fields, load
 from trustnav.sim.driving.episode import STATES, DriveResult, DriveSimulation, drive_result
 from trustnav.sim.driving.sensing import RenderSensor, make_render_sensing
 from trustnav.sim.driving.world import DriveScenario, load_drive_scenario
@@ -67,72 +67,52 @@ __all__ = ["ENV_ID", "DriveEnv", "DriveEnvConfig"]
 ENV_ID = "trustnav/Drive-v0"
 
 
-def _number(name: str, v: Any, lo: float, hi: float, *, none: bool = False) -> None:
-    if v is None and none:
-        return
-    ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi
-    if not ok:
-        raise ValueError(f"config {name} must be a number in [{lo:g}, {hi:g}]{' or None' if none else ''}, got {v!r}")
+_REWARD = Number(-1e6, 1e6)  # a reward or penalty per event
 
 
 @dataclass(frozen=True)
 class DriveEnvConfig:
-    """The environment's configuration (the keys of :meth:`DriveEnv.default_config`; see the module)."""
+    """The environment's configuration (the keys of :meth:`DriveEnv.default_config`; see the module),
+    checked by :mod:`trustnav.schema` (``config contact_radius must be a number in [0, 10] m, got
+    -1``; a misspelled key gets the key meant)."""
 
     scenario: str | DriveScenario = "case-1"
-    sensing: str = "keypoints"
-    attentive: bool | None = None
-    capture_rate: float | None = None
-    state: str = "perceived"
-    max_pedestrians: int = 8
-    view: str = "top"
+    sensing: Annotated[str, OneOf("keypoints", "render")] = "keypoints"
+    attentive: Annotated[bool | None, Maybe(Flag(), none="None")] = None
+    capture_rate: Annotated[float | None, Maybe(Number(1e-3, 1000.0, unit=" frames/s"), none="None")] = None
+    state: Annotated[str, OneOf(*STATES)] = "perceived"
+    max_pedestrians: Annotated[int, Integer(1, 256)] = 8
+    view: Annotated[str, OneOf("top", "camera")] = "top"
     normalize_actions: bool = True
-    contact_radius: float = 1.0
+    contact_radius: Annotated[float, Number(0.0, 10.0, unit=" m")] = 1.0
     terminate_off_road: bool = True
-    off_road_margin: float = 0.0
-    goal_max_speed: float | None = 2.0
-    progress_reward: float = 1.0
-    margin_penalty: float = 10.0
-    collision_penalty: float = 100.0
-    off_road_penalty: float = 100.0
-    goal_reward: float = 0.0
+    off_road_margin: Annotated[float, Number(0.0, 50.0, unit=" m")] = 0.0
+    goal_max_speed: Annotated[float | None, Maybe(Number(0.0, 100.0, unit=" m/s"), none="None")] = 2.0
+    progress_reward: Annotated[float, _REWARD] = 1.0
+    margin_penalty: Annotated[float, _REWARD] = 10.0
+    collision_penalty: Annotated[float, _REWARD] = 100.0
+    off_road_penalty: Annotated[float, _REWARD] = 100.0
+    goal_reward: Annotated[float, _REWARD] = 0.0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.scenario, (str, DriveScenario)):
-            raise ValueError(f"config scenario must be a name, a .toml path or a DriveScenario, got {self.scenario!r}")
-        if self.sensing not in ("keypoints", "render"):
-            raise ValueError(f"config sensing must be 'keypoints' or 'render', got {self.sensing!r}")
-        if self.state not in STATES:
-            raise ValueError(f"config state must be one of {STATES}, got {self.state!r}")
-        if self.attentive not in (None, True, False):
-            raise ValueError(f"config attentive must be true, false or None, got {self.attentive!r}")
-        if self.view not in ("top", "camera"):
-            raise ValueError(f"config view must be 'top' or 'camera', got {self.view!r}")
-        k = self.max_pedestrians
-        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= 256:
-            raise ValueError(f"config max_pedestrians must be an integer in [1, 256], got {k!r}")
-        for name in ("normalize_actions", "terminate_off_road"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"config {name} must be true or false, got {getattr(self, name)!r}")
-        if self.capture_rate is not None:
-            _number("capture_rate", self.capture_rate, 1e-3, 1000.0)
-            if self.capture_rate <= 0:
-                raise ValueError("config capture_rate must be positive")
-        _number("contact_radius", self.contact_radius, 0.0, 10.0)
-        _number("off_road_margin", self.off_road_margin, 0.0, 50.0)
-        _number("goal_max_speed", self.goal_max_speed, 0.0, 100.0, none=True)
-        for name in ("progress_reward", "margin_penalty", "collision_penalty", "off_road_penalty", "goal_reward"):
-            _number(name, getattr(self, name), -1e6, 1e6)
+        check_fields(self, Dotted("config"))
+        _scenario(self.scenario, Dotted("config").sub("scenario"))
 
     @classmethod
     def from_dict(cls, config: dict[str, Any]) -> DriveEnvConfig:
-        """From a configuration dictionary; an unknown key is refused by name."""
+        """From a configuration dictionary: every error at once, one line each; an unknown key
+        named with the key meant (``unknown key 'contact_radus' in config: did you mean
+        'contact_radius'?``)."""
         if not isinstance(config, dict):
-            raise ValueError(f"config must be a dictionary, got {config!r}")
-        unknown = sorted(set(config) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"unknown config keys {unknown}: expected some of {sorted(f.name for f in fields(cls))}")
-        return cls(**config)
+            raise SchemaError(f"config must be a dictionary, got {config!r}")
+        return load(cls, config, Dotted("config"), convert={"scenario": _scenario})  # type: ignore[no-any-return]
+
+
+def _scenario(value: Any, place: Dotted) -> str | DriveScenario:
+    """The scenario of a configuration: a preset's name, a .toml path or a DriveScenario."""
+    if not isinstance(value, (str, DriveScenario)):
+        raise SchemaError(f"{place.table} must be a name, a .toml path or a DriveScenario, got {value!r}")
+    return value
 
 
 class DriveEnv(gym.Env):
