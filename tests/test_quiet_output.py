@@ -60,3 +60,12 @@ def test_mediapipe_segmenter_starts_without_a_warning(capfd):
         g.close()
     assert mask.shape == (120, 80)
     assert err == "trustnav: still heard\n", err
+
+
+def test_the_renderer_starts_without_pybullets_banner(capfd):
+    """``pybullet build time: ...`` reached stderr on every render drive (the demo's first line)."""
+    from trustnav.sim.driving.render import PyBulletRenderer
+
+    capfd.readouterr()
+    PyBulletRenderer().close()
+    assert "pybullet" not in capfd.readouterr().err

@@ -377,12 +377,15 @@ class PyBulletRenderer:
     """
 
     def __init__(self, street: StreetSpec | None = None, *, shadows: bool = False) -> None:
-        import pybullet
+        from trustnav.perception.frames import quiet_stderr
 
-        self.street = street or StreetSpec()
-        self.shadows = shadows
-        self._p: Any = pybullet
-        self._cid: int | None = self._p.connect(self._p.DIRECT)
+        with quiet_stderr():  # PyBullet prints its build time to stderr when it loads
+            import pybullet
+
+            self.street = street or StreetSpec()
+            self.shadows = shadows
+            self._p: Any = pybullet
+            self._cid: int | None = self._p.connect(self._p.DIRECT)
         self._people: dict[Appearance, list[_Mannequin]] = {}
         self._textures: dict[str, int] = {}
         try:
