@@ -230,7 +230,7 @@ def test_camera_inset_shows_every_label_whole(case1):
     k = drive_plots.camera_frame_index(aware)
     f = aware.frames[k]
     recs, _, labels = drive_plots._frame_records(f)
-    assert recs and all(r["name"] == f"#{r['track_id']}" for r in recs)  # perception's id, not a scenario name
+    assert recs and all(r["name"] == f"track {r['track_id']}" for r in recs)  # perception's id, not a scenario name
     assert all(r["colour"] == style.person_bgr(s.index) for r, s in zip(recs, f.sensed, strict=True))
     img = drive_plots.annotated_frames(aware)[k]
     rects = label_rects(img.shape, recs, labels)

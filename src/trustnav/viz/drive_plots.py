@@ -219,7 +219,7 @@ def plot_top_view(
         shown = [r["bbox"] for r in recs] + [list(b) for b in label_rects(cams[k].shape, recs, labels)]
         ax_cam.imshow(np.ascontiguousarray(_crop_to_people(cams[k], shown)[..., ::-1]))
         ax_cam.set_axis_off()
-        ax_cam.set_title(f"camera at t = {f.time:.0f} s: label = perception's track # and trust\n(box colour: "
+        ax_cam.set_title(f"camera at t = {f.time:.0f} s: label = perception's track and trust\n(box colour: "
                          "trust), chip = pedestrian, skeleton = eye contact", fontsize=8)  # fmt: skip
     fig.suptitle(title or sc.title)
     return style.save(fig, path)
@@ -439,7 +439,7 @@ def _backdrop(result: DriveResult, frame: FrameReport) -> NDArray[np.uint8]:
 
 def _frame_records(f: FrameReport) -> tuple[list[dict], list[NDArray[np.float64]], list[str]]:
     """A frame's people as :func:`trustnav.viz.annotate.annotate` takes them: labelled with what
-    perception made of them (its track id ``#k`` and the track's trust), the chip in the colour of
+    perception made of them (its track, ``track k``, and the track's trust), the chip in the colour of
     the pedestrian each is (the colour that links it to the other figures)."""
     recs, kps, labels = [], [], []
     for s in f.sensed:
@@ -448,7 +448,7 @@ def _frame_records(f: FrameReport) -> tuple[list[dict], list[NDArray[np.float64]
         if trust is None and j is not None:
             trust = f.views[j].trust
         rec = {"bbox": [float(x) for x in s.person.bbox], "trust": float(trust or 0.0),
-               "eye_contact": s.eye_contact, "track_id": s.track_id, "name": f"#{s.track_id}"}  # fmt: skip
+               "eye_contact": s.eye_contact, "track_id": s.track_id, "name": f"track {s.track_id}"}  # fmt: skip
         if j is not None:
             rec["colour"] = style.person_bgr(j)
         recs.append(rec)
@@ -459,7 +459,7 @@ def _frame_records(f: FrameReport) -> tuple[list[dict], list[NDArray[np.float64]
 
 def annotated_frames(result: DriveResult) -> list[NDArray[np.uint8]]:
     """Each captured frame annotated with trustnav.viz.annotate (BGR): box coloured by trust with
-    perception's '#track trust phone' and a chip in the pedestrian's colour, skeleton coloured by
+    perception's 'track k trust phone' and a chip in the pedestrian's colour, skeleton coloured by
     eye contact; plus the time."""
     import cv2
 
