@@ -118,6 +118,24 @@ def unnamed_lines(fig: Figure) -> list[str]:
     return bad
 
 
+def minima_under_legend(fig: Figure) -> list[str]:
+    """Curves whose lowest point (a closest approach) the legend hides."""
+    r = fig.canvas.get_renderer()
+    bad = []
+    for ax in fig.axes:
+        leg = ax.get_legend()
+        if leg is None:
+            continue
+        box = leg.get_window_extent(r)
+        for ln in _curves(ax):
+            p = _points(ln)
+            if len(p) > 1 and ln.get_transform() == ax.transData:
+                x, y = ax.transData.transform(p[int(np.argmin(p[:, 1]))])
+                if box.x0 <= x <= box.x1 and box.y0 <= y <= box.y1:
+                    bad.append(f"the minimum of {ln.get_label()!r} lies under the legend")
+    return bad
+
+
 def check(fig: Figure) -> list[str]:
     return texts_cut_off(fig) + hidden_curves(fig) + unnamed_lines(fig)
 
@@ -204,6 +222,7 @@ def test_case1_figures_show_everything_they_draw(case1, drawn, tmp_path):
     assert len(drawn) == 3
     for fig in drawn:
         assert check(fig) == [], fig.axes[0].get_title()
+    assert minima_under_legend(drawn[1]) == []  # the closest approaches stay in sight
     notes = [t.get_text() for t in drawn[1].axes[0].get_legend().get_texts() if "same curve as" in t.get_text()]
     assert notes == ["distracted, equal trust 1: min 4.00 m (same curve as attentive)"]
 
@@ -216,6 +235,7 @@ def test_case2_and_comparison_figures_show_everything_they_draw(case2, drawn, tm
     groups = [(v, [(r.mode, r.result) for r in runs]) for v, runs in case2.by_variant()]
     drive_plots.plot_trust_comparison(groups, tmp_path / "compare.png")
     assert len(drawn) == 3
+    assert minima_under_legend(drawn[1]) == []
     for fig in drawn:
         assert check(fig) == [], fig.axes[0].get_title()
 

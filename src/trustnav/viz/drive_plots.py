@@ -310,7 +310,7 @@ def plot_distance(
     in its own colour, one line style per run (several results: Case II's two runs; comparisons:
     e.g. the equal-trust run, dashed)."""
     rs = _many(results)
-    fig, ax = style.new_figure((6.4, 3.6))
+    fig, ax = style.new_figure((6.4, 4.0))
     styles = ("-", "--", ":", "-.")
     runs = [(r, "" if len(rs) == 1 else f"{_variant(r)} run") for r in rs] + [(r, lab) for lab, r in comparisons]
     for k, (r, tag) in enumerate(runs):
@@ -328,7 +328,8 @@ def plot_distance(
     ax.set_ylabel("distance to pedestrian (m)")
     ax.set_title(f"{rs[0].scenario.name}: distance to the pedestrians")
     style.separate_coincident(ax)
-    style.legend(ax, loc="lower left")  # before the approach: nothing there
+    # upper right, over the receding arms: lower left, the labels of several runs covered the closest approaches
+    style.legend(ax, loc="upper right", fontsize=7)
     return style.save(fig, path)
 
 
