@@ -243,7 +243,11 @@ def test_sweep_cli_on_two_local_workers_then_resume_does_nothing(tmp_path: Path,
     assert (out / "summary.md").read_text().startswith("# Campaign `small`")
     assert (out / "figures" / "paper_min_distance_vs_trust.png").exists()
     assert (out / "figures" / "si_rates_vs_horizon.png").exists()
-    assert "ran 8 (0 failed) on 2 workers" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "ran 8 (0 failed) on 2 workers" in captured.out
+    # stderr is not a terminal here (a log file, CI): plain progress lines, the last one complete
+    assert "\r" not in captured.err
+    assert "trustnav: small: done: 8/8 ep (100 %)" in captured.err.splitlines()[-1]
     before = (out / "records.jsonl").read_text()
     assert main(["sweep", str(spec), "--out", str(out), "--workers", "2"]) == 0
     assert "8 already recorded, ran 0" in capsys.readouterr().out
@@ -265,6 +269,23 @@ def test_interrupted_campaign_resumes_only_missing_episodes(tmp_path: Path, clus
     assert (again.ran, again.skipped) == (3, 5)
     assert set(seen) == dropped
     assert len(RecordStore(out / "records.jsonl").latest()) == 8
+
+
+def test_an_interrupted_campaign_logs_where_it_stopped_never_100_percent(tmp_path: Path, cluster, capsys) -> None:
+    spec = spec_from_dict(SMALL)
+    seen: list[str] = []
+
+    def stop_after_three(rec: dict) -> None:
+        seen.append(rec["key"])
+        if len(seen) == 3:
+            raise KeyboardInterrupt  # Ctrl-C while the records come in
+
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(spec, tmp_path / "out", scheduler=cluster.scheduler_address, on_record=stop_after_three)
+    err = capsys.readouterr().err
+    last = err.splitlines()[-1]
+    assert last.startswith("trustnav: small: interrupted: ") and "/8 ep (" in last, err
+    assert "100 %" not in err
 
 
 def test_failing_episodes_are_recorded_and_the_rest_complete(tmp_path: Path, cluster) -> None:
