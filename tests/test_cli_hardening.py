@@ -212,6 +212,7 @@ def test_sigint_to_a_real_run_keeps_csv_and_json(sequences, looking_weights, out
     rows = _rows(out)  # a new --out: the records so far are moved into place
     assert rows and len((out / "tracks.csv").read_text().splitlines()) == 1 + len(rows)
     assert "Traceback" not in err and "kept" in err.splitlines()[-1]
+    assert "trustnav: walk_a: interrupted: " in err and "(100 %)" not in err  # the progress stops where the run did
     assert not list(out.parent.glob(".*.partial"))
 
 
