@@ -22,6 +22,7 @@ from numba import njit
 from trustnav.control.barrier import h_quad
 
 INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
+CURVATURE_FLOOR = 1e-2  # eigenvalue floor of the exact-Hessian SQP's (I + dt^2 C), see single_integrator_curvature
 
 
 @njit(cache=True, fastmath=False)
@@ -364,3 +365,65 @@ def shift_plan(plan, out):
         src = k + 1 if k + 1 < n else n - 1
         for d in range(plan.shape[1]):
             out[k, d] = plan[src, d]
+
+
+@njit(cache=True)
+def single_integrator_curvature(lam, nsimple, omg, stride, n_p, dt, floor, h_mat):
+    """The Hessian of the SQP's QP with the pedestrian rows' curvature (an exact-Hessian SQP) for
+    the single integrator with cost sum ||u - u_bar||^2: H = 2 (I + dt^2 C) (x) I_2, where C is the
+    Hessian of - sum_r mu_r g_r (rows g_r of `cbf_imp` with `h_quad`, multipliers mu_r = -lam[nsimple
+    + r] >= 0 of the last hard QP, DAQP's sign for an active lower bound) over the N_h planar steps.
+    Row (k, j) has Hessian 2 dt^2 (M_{k+1} - (1 - gamma_j) M_k), M_t[a, b] = 1 where a, b < t, so
+    C[a, b] depends on max(a, b) alone. I + dt^2 C is made positive definite by clipping its
+    eigenvalues at ``floor`` (the convexification of CasADi's ``eigen-clip``); ``floor`` <= 0: the
+    cost's Hessian alone (a Gauss-Newton SQP). Returns the smallest eigenvalue before clipping (1.0
+    when every multiplier is zero: H = 2 I)."""
+    n_h = h_mat.shape[0] // 2
+    if floor <= 0.0:
+        flat_hessian(h_mat)
+        return 1.0
+    w = np.zeros(n_h + 1)  # w[t]: the weight of M_t
+    any_active = False
+    for k in range(n_h):
+        for j in range(n_p):
+            mu = -lam[nsimple + k * stride + j]
+            if mu > 0.0:
+                any_active = True
+                w[k + 1] -= mu
+                w[k] += mu * omg[j]
+    red = np.eye(n_h)
+    low = 1.0
+    if any_active:
+        tail = 0.0
+        for s in range(n_h - 1, -1, -1):  # tail = sum over t > s of w[t]
+            tail += w[s + 1]
+            c = dt * dt * tail
+            for a in range(s + 1):  # entries with max(a, b) = s
+                red[a, s] += c
+                if a != s:
+                    red[s, a] += c
+        vals, vecs = np.linalg.eigh(red)
+        low = vals[0]
+        if low < floor:
+            for i in range(n_h):
+                if vals[i] < floor:
+                    vals[i] = floor
+            red = (vecs * vals) @ vecs.T
+    for a in range(n_h):
+        for b in range(n_h):
+            v = 2.0 * red[a, b]
+            h_mat[2 * a, 2 * b] = v
+            h_mat[2 * a + 1, 2 * b + 1] = v
+            h_mat[2 * a, 2 * b + 1] = 0.0
+            h_mat[2 * a + 1, 2 * b] = 0.0
+    return low
+
+
+@njit(cache=True)
+def flat_hessian(h_mat):
+    """H = 2 I: the single integrator's cost Hessian alone (the first QP of a solve)."""
+    n = h_mat.shape[0]
+    for a in range(n):
+        for b in range(n):
+            h_mat[a, b] = 0.0
+        h_mat[a, a] = 2.0

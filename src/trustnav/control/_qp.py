@@ -26,10 +26,12 @@ from trustnav.control._kernels import (
     bicycle_qp,
     bicycle_rollout,
     clip_plan,
+    flat_hessian,
     lane_march,
     one_minus_gamma,
     row_violations,
     shift_plan,
+    single_integrator_curvature,
     single_integrator_qp,
     single_integrator_rollout,
     velocity_stage,
@@ -124,13 +126,18 @@ class QpStructs:
 def single_integrator_full_steps(
     max_it, tol, u, seen, x0, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat,
     bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, trial,
+    h_mat, n_p, floor,
 ):  # fmt: skip
     """SQP steps of the single-integrator problem from ``u`` (changed in place), as
     :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them: the QP at u, solved
     by DAQP; full steps u <- u + dU for the first ``full_its`` iterations, then the backtracking
     line search of :func:`bicycle_steps` on the L1 merit (weight ``mu``; ``trial`` its buffer);
     stop when the step taken, max |alpha dU|, is below tol. The iterate of each QP is copied to
-    ``seen``.
+    ``seen``. The first QP's Hessian ``h_mat`` is the cost's (2 I); every later one adds the
+    pedestrian rows' curvature weighted by the last QP's multipliers
+    (:func:`~trustnav.control._kernels.single_integrator_curvature`, eigenvalues clipped at
+    ``floor``): an exact-Hessian SQP, which converges in a few iterations where the Gauss-Newton
+    Hessian alone converged linearly (many active rows, fewer than the inputs).
 
     Returns (iterations, state, cost at the last built point, DAQP exit flag): state 1 converged
     (the QP buffers hold the data at the final u, the cost is its cost), 0 ``max_it`` iterations
@@ -138,9 +145,11 @@ def single_integrator_full_steps(
     DAQP starts from the working set of the last QP it solved (its multipliers ``lam``, kept from
     one control step to the next), as a ``daqp.Model`` does."""
     n_h = u.shape[0]
+    n = 2 * n_h
     cost = 0.0
     flag = 0
     fresh = False
+    flat_hessian(h_mat)
     for it in range(1, max_it + 1):
         if not fresh:
             cost = single_integrator_qp(
@@ -155,6 +164,7 @@ def single_integrator_full_steps(
         for k in range(n_h):
             seen[it - 1, k, 0] = u[k, 0]
             seen[it - 1, k, 1] = u[k, 1]
+        single_integrator_curvature(lam, n, omg, stride, n_p, dt, floor, h_mat)  # the next QP's Hessian
         step = 0.0
         if it <= full_its:
             for k in range(n_h):
@@ -192,6 +202,7 @@ def single_integrator_step(
     x_in, peds_in, vels, trust, prev, max_it, x0, origin, peds, omg, ref, shifted, lam0, gamma_ini, delta, lam_g,
     goal_x, goal_y, gain, v_max, dt, rollout, max_coordinate, tol, seen, r2, timing, n_decided, ulo, uhi, pos, sens,
     f, a_mat, bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu,
+    h_mat, floor,
 ):  # fmt: skip
     """A whole control step of the single-integrator problem with a velocity-tracking cost, in one
     compiled call: the step's data (:func:`velocity_stage`, from world-frame ``x_in``,
@@ -228,7 +239,8 @@ def single_integrator_step(
     clip_plan(shifted, ulo, uhi, u)
     it, state, cost, _ = single_integrator_full_steps(
         max_it, tol, u, seen, x0, ref, peds, vels, omg, r2, dt, timing, n_p, ulo, uhi, pos, sens, f, a_mat, bl, bu,
-        g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, shifted,
+        g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, shifted, h_mat, n_p,
+        floor,
     )  # fmt: skip
     first = worst = 0.0
     if state > 0:

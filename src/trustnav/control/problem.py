@@ -291,6 +291,12 @@ class MpcProblem:
         self._qp_structs: _qp.QpStructs | None = None  # DAQP's C structures over H, f, A, bu, bl
         self._seen = np.empty((0, self.n_h, 2))  # iterates of the compiled loop
         self._whole_args: tuple | None = None  # whole_step's compiled call's fixed arguments
+        # an exact-Hessian SQP where the rows' curvature is known in closed form (the single
+        # integrator tracking a velocity: positions linear in U, cost Hessian 2 I); H then holds the
+        # curvature of the last hard QP's multipliers (`curve`) or the cost's alone (`flatten`)
+        self.exact_capable = self._fused is _fused_single_integrator
+        self.exact_hessian = self.exact_capable  # the solver may turn it off (SqpSolver(hessian=...))
+        self._curved = False
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -300,6 +306,7 @@ class MpcProblem:
         self.m_cbf = self.n_obs * self.n_h
         self.m = self.m_cbf + self.n_state_rows
         self.H = 2.0 * np.eye(self.n)
+        self._curved = False
         self.f = np.zeros(self.n)
         self.A = np.zeros((self.m, self.n))
         self.bl = np.zeros(self.n + self.m)
@@ -412,6 +419,26 @@ class MpcProblem:
             self.bl[self.n : self.n + self.n_decided] = -kern.INF  # decided rows: nothing to choose
         return cost
 
+    def curve(self, lam: NDArray[np.float64]) -> None:
+        """H of the next QP with the pedestrian rows' curvature weighted by the multipliers ``lam`` of
+        the last hard QP (DAQP's, simple bounds first); problems without :attr:`exact_hessian`
+        keep theirs (:func:`~trustnav.control._kernels.single_integrator_curvature`)."""
+        if self.exact_hessian and lam.shape[0] == self.n + self.m:  # (not a relaxed QP's)
+            kern.single_integrator_curvature(lam, self.n, self.one_minus_gamma, self.n_obs, self.n_p,
+                                             float(self.config.dt), kern.CURVATURE_FLOOR, self.H)  # fmt: skip
+            self._curved = True
+
+    @property
+    def curvature_floor(self) -> float:
+        """The compiled loops' eigenvalue floor of the exact Hessian; 0: the cost's Hessian alone."""
+        return kern.CURVATURE_FLOOR if self.exact_hessian else 0.0
+
+    def flatten(self) -> None:
+        """H back to the cost's Hessian alone (the first QP of a solve, recoveries, relaxations)."""
+        if self._curved:
+            kern.flat_hessian(self.H)
+            self._curved = False
+
     def compiled_steps(
         self,
         u: NDArray[np.float64],
@@ -446,7 +473,9 @@ class MpcProblem:
                 max_it, tol, u, seen, self.x0, self.stage, self.peds, self.vels, self.one_minus_gamma, self.r2,
                 c.dt, self.timing_code, self.n_obs, self.ulo, self.uhi, self.xs, self.sens, self.f, self.A, self.bl,
                 self.bu, self.g, *tail, max_it if full_steps is None else full_steps, merit_weight, np.empty_like(u),
+                self.H, self.n_p, self.curvature_floor,
             )  # fmt: skip
+            self._curved = True
         else:
             w, wheelbase, vmin, vmax, dt, n_sub = self._bicycle_constants()
             st = self.stage
@@ -493,7 +522,7 @@ class MpcProblem:
         n_p = self.n_p
         if not (
             ck is not None and ck[0] is self.cost and ck[1] is qs and ck[2] is self.r2 and ck[3] is self.f
-            and ck[4] >= max_it and ck[5] == (tol, primal_tol, merit_weight, full_steps)
+            and ck[4] >= max_it and ck[5] == (tol, primal_tol, merit_weight, full_steps, self.curvature_floor)
         ):  # fmt: skip
             ck = self._whole_args = self._whole_arguments(max_it, tol, primal_tol, merit_weight, full_steps)
             if ck is None:
@@ -501,6 +530,7 @@ class MpcProblem:
         if tr.shape[0] != n_p or not n_p or not self._plain_radii:
             return None
         bicycle = ck[9]
+        self._curved = not bicycle
         try:
             if bicycle:
                 out = _qp.bicycle_step(x, peds, vels, tr, prev, u_prev, max_it, *ck[6])
@@ -569,9 +599,10 @@ class MpcProblem:
                 *data, stage, np.empty((n_h, 2)), lam0, *gamma, float(goal[0]), float(goal[1]), float(r.gain),
                 float(r.v_max), float(c.dt), r.mode == "rollout", float(MAX_COORDINATE), float(tol), seen, self.r2,
                 int(self.timing_code), int(self.n_decided), self.ulo, self.uhi, self.xs, self.sens, self.f, self.A,
-                self.bl, self.bu, self.g, *qs.tail, int(full_steps), float(merit_weight),
+                self.bl, self.bu, self.g, *qs.tail, int(full_steps), float(merit_weight), self.H,
+                self.curvature_floor,
             )  # fmt: skip
-        settings = (tol, primal_tol, merit_weight, full_steps)
+        settings = (tol, primal_tol, merit_weight, full_steps, self.curvature_floor)
         return cost, qs, self.r2, self.f, seen.shape[0], settings, args, lam0, (*data, stage), bicycle
 
     def _bicycle_constants(self) -> tuple:
