@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
-from trustnav.control import _qp
+from trustnav.control import _qp, starts
 from trustnav.control.barrier import TIMINGS, Barrier, PedestrianBarrier, Timing, cbf_rows
 from trustnav.control.costs import (
     Cost,
@@ -695,14 +695,13 @@ class MpcProblem:
         return self.model.braking_plan(self.x0, self.n_h, self.config.dt)
 
     def candidate_starts(self) -> list[NDArray[np.float64]]:
-        """Starting plans for feasibility recovery (the model's; see
-        :meth:`DynamicsModel.candidate_starts`)."""
-        return self.model.candidate_starts(self)
+        """Starting plans for feasibility recovery (:func:`trustnav.control.starts.candidate_starts`)."""
+        return starts.candidate_starts(self)
 
     def first_step_infeasible(self, tol: float) -> bool:
         """True when the k = 0 rows admit no first input (a certificate that no plan is
-        hard-feasible); False when unknown."""
-        return self.model.first_step_infeasible(self, tol)
+        hard-feasible); False when unknown (:func:`trustnav.control.starts.first_step_infeasible`)."""
+        return starts.first_step_infeasible(self, tol)
 
     def binding_obstacles(self, count: int) -> NDArray[np.int64]:
         """Indices of the obstacles (pedestrians, then user barrier functions) with the lowest
