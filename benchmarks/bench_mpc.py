@@ -363,7 +363,11 @@ def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False, c
         "alone_p95_ms": _ms(t_alone, 95),
         "alone_over_floor": _ms(t_alone) / _ms(rec["floor"]),
         "iterations_median": float(np.median(rec["it"])),
+        "iterations_p95": float(np.percentile(rec["it"], 95)),
         "iterations_max": int(np.max(rec["it"])),
+        # steps that ended at the SQP's iteration limit (SqpSolver.max_iter), as a share of the steps
+        "at_iteration_limit_share": float(np.mean(np.array(rec["it"]) >= SqpSolver().max_iter)),
+        "load_1min": os.getloadavg()[0],
         "failures": int(f_def),
         "unconverged_checked_feasible": int(u_def),
         "default_steps": len(t_def),
@@ -426,7 +430,8 @@ def main() -> None:
     rows = []
     print("| model | case | N_p x N_h | default median / p95 / max (ms) | compiled floor median (ms) "
           "| default run alone median / p95 (ms), x floor | SQP its "
-          "median / max | CasADi SQP median / p95 (ms) | IPOPT median / p95 (ms) | default / CasADi SQP: median, p95 | "
+          "median / p95 / max, at limit | CasADi SQP median / p95 (ms) | IPOPT median / p95 (ms) "
+          "| default / CasADi SQP: median, p95 | "
           "max input diff (SQP / IPOPT) | failures (default / CasADi SQP / IPOPT) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for model, n_p, n_h, seed, bsteps in cases:
@@ -441,11 +446,13 @@ def main() -> None:
         print(f"| {model} | {case} | {r['n_p']} x {n_h} "
               f"| {r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f} / {r['default_max_ms']:.3f} "
               f"| {r['floor_median_ms']:.3f} | {r['alone_median_ms']:.3f} / {r['alone_p95_ms']:.3f}, "
-              f"{r['alone_over_floor']:.1f}x | {r['iterations_median']:.0f} / {r['iterations_max']} "
+              f"{r['alone_over_floor']:.1f}x | {r['iterations_median']:.0f} / {r['iterations_p95']:.0f} / "
+              f"{r['iterations_max']}, {100 * r['at_iteration_limit_share']:.1f} % "
               f"| {_fmt(sqp)} / {_fmt(r['casadi_sqp_p95_ms'])} | {_fmt(ipo, '.2f')} / {_fmt(r['ipopt_p95_ms'], '.2f')} "
               f"| {ratio} | {_fmt(r['casadi_sqp_max_input_diff'], '.1e')} / {_fmt(r['ipopt_max_input_diff'], '.1e')} "
               f"| {r['failures']} / {_fmt(r['casadi_sqp_failures'], 'd')} / {_fmt(r['ipopt_failures'], 'd')} |",
               flush=True)  # fmt: skip
+    print(f"\nload average (1 min) at the end: {os.getloadavg()[0]:.2f}")
     if use_casadi:
         print("\nRatios below 1 favour trustnav (targets: median <= 0.33, p95 <= 0.5). CasADi times are the wall time "
               "of one solver call from Python; the default's are whole controller steps. Input differences are "

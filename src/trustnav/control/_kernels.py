@@ -22,6 +22,8 @@ from numba import njit
 from trustnav.control.barrier import h_quad
 
 INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
+# the exact-Hessian SQP's QPs after this iteration add the rows' curvature
+CURVATURE_START = 4
 CURVATURE_FLOOR = 1e-2  # eigenvalue floor of the exact-Hessian SQP's (I + dt^2 C), see single_integrator_curvature
 
 
@@ -374,10 +376,10 @@ def single_integrator_curvature(lam, nsimple, omg, stride, n_p, dt, floor, h_mat
     Hessian of - sum_r mu_r g_r (rows g_r of `cbf_imp` with `h_quad`, multipliers mu_r = -lam[nsimple
     + r] >= 0 of the last hard QP, DAQP's sign for an active lower bound) over the N_h planar steps.
     Row (k, j) has Hessian 2 dt^2 (M_{k+1} - (1 - gamma_j) M_k), M_t[a, b] = 1 where a, b < t, so
-    C[a, b] depends on max(a, b) alone. I + dt^2 C is made positive definite by clipping its
-    eigenvalues at ``floor`` (the convexification of CasADi's ``eigen-clip``); ``floor`` <= 0: the
-    cost's Hessian alone (a Gauss-Newton SQP). Returns the smallest eigenvalue before clipping (1.0
-    when every multiplier is zero: H = 2 I)."""
+    C[a, b] depends on max(a, b) alone. Where I + dt^2 C - floor I is not positive definite (a
+    Cholesky test), its eigenvalues are clipped at ``floor`` (the convexification of CasADi's
+    ``eigen-clip``); ``floor`` <= 0: the cost's Hessian alone (a Gauss-Newton SQP). Returns the
+    smallest eigenvalue where it clipped, else 1.0."""
     n_h = h_mat.shape[0] // 2
     if floor <= 0.0:
         flat_hessian(h_mat)
@@ -402,9 +404,10 @@ def single_integrator_curvature(lam, nsimple, omg, stride, n_p, dt, floor, h_mat
                 red[a, s] += c
                 if a != s:
                     red[s, a] += c
-        vals, vecs = np.linalg.eigh(red)
-        low = vals[0]
-        if low < floor:
+        work = np.empty((n_h, n_h))
+        if not _positive_definite(red, -floor, work):  # clip the eigenvalues below floor (rarely needed)
+            vals, vecs = np.linalg.eigh(red)
+            low = vals[0]
             for i in range(n_h):
                 if vals[i] < floor:
                     vals[i] = floor
@@ -427,3 +430,21 @@ def flat_hessian(h_mat):
         for b in range(n):
             h_mat[a, b] = 0.0
         h_mat[a, a] = 2.0
+
+
+@njit(cache=True)
+def _positive_definite(mat, shift, work):
+    """True when mat + shift I is positive definite (an in-place Cholesky in ``work``)."""
+    n = mat.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = mat[i, j] + (shift if i == j else 0.0)
+            for k in range(j):
+                acc -= work[i, k] * work[j, k]
+            if i == j:
+                if acc <= 0.0:
+                    return False
+                work[i, i] = math.sqrt(acc)
+            else:
+                work[i, j] = acc / work[j, j]
+    return True

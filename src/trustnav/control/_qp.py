@@ -22,6 +22,7 @@ from numba import njit, types
 from numpy.typing import NDArray
 
 from trustnav.control._kernels import (
+    CURVATURE_START,
     INF,
     bicycle_qp,
     bicycle_rollout,
@@ -133,7 +134,7 @@ def single_integrator_full_steps(
     by DAQP; full steps u <- u + dU for the first ``full_its`` iterations, then the backtracking
     line search of :func:`bicycle_steps` on the L1 merit (weight ``mu``; ``trial`` its buffer);
     stop when the step taken, max |alpha dU|, is below tol. The iterate of each QP is copied to
-    ``seen``. The first QP's Hessian ``h_mat`` is the cost's (2 I); every later one adds the
+    ``seen``. The first ``CURVATURE_START`` QPs' Hessian ``h_mat`` is the cost's (2 I); every later one adds the
     pedestrian rows' curvature weighted by the last QP's multipliers
     (:func:`~trustnav.control._kernels.single_integrator_curvature`, eigenvalues clipped at
     ``floor``): an exact-Hessian SQP, which converges in a few iterations where the Gauss-Newton
@@ -164,7 +165,8 @@ def single_integrator_full_steps(
         for k in range(n_h):
             seen[it - 1, k, 0] = u[k, 0]
             seen[it - 1, k, 1] = u[k, 1]
-        single_integrator_curvature(lam, n, omg, stride, n_p, dt, floor, h_mat)  # the next QP's Hessian
+        if it >= CURVATURE_START:  # the next QP's Hessian: with the rows' curvature once it is slow
+            single_integrator_curvature(lam, n, omg, stride, n_p, dt, floor, h_mat)
         step = 0.0
         if it <= full_its:
             for k in range(n_h):

@@ -111,8 +111,9 @@ class SqpSolver:
     plan seen on the way beats a relaxed one. Nonlinear models take a backtracking step on an L1
     merit. ``hessian="exact"`` (default): where the rows' curvature is known in closed form (the
     single integrator tracking a velocity, :attr:`MpcProblem.exact_capable`), every QP after a
-    solve's first adds it, weighted by the last hard QP's multipliers and convexified by clipping
-    eigenvalues (an exact-Hessian SQP, converging in a few iterations where many rows are active);
+    solve's fourth (``_kernels.CURVATURE_START``: steps that converge in four stay as they were)
+    adds it, weighted by the last hard QP's multipliers and convexified by clipping eigenvalues
+    (an exact-Hessian SQP, converging in a few iterations where many rows are active);
     ``"gauss-newton"``: the cost's Hessian alone, as before issue 36. Every point evaluated is
     checked exactly; an unconverged solve whose best plan violates
     a row runs the feasibility SQP from it (restoration). With a deadline (seconds) the best
@@ -607,7 +608,7 @@ class SqpSolver:
         s.fresh = False
         s.seen.append(s.u)  # ranked only when needed (recovery, relaxation, an unconverged end)
         s.step, flag = self._qp(p, s.slack, s.until if s.it > 1 else None)  # the first QP always runs
-        if s.step is not None and s.slack is None:
+        if s.step is not None and s.slack is None and s.it >= kern.CURVATURE_START:
             p.curve(self._lam)  # the next QP's Hessian (exact-Hessian problems)
         if s.step is not None or flag == DEADLINE or s.slack is not None or p.m_cbf == 0:
             return flag
@@ -620,7 +621,8 @@ class SqpSolver:
             s.restarts += tried
             if s.step is not None:
                 s.u, s.cost, s.recovered = start, c_start, True
-                p.curve(self._lam)
+                if s.it >= kern.CURVATURE_START:
+                    p.curve(self._lam)
         if s.step is None:  # no hard-feasible start found: relax from the best point seen
             if s.best.u is not None:
                 s.u = s.best.u.copy()
