@@ -448,3 +448,80 @@ def _positive_definite(mat, shift, work):
             else:
                 work[i, j] = acc / work[j, j]
     return True
+
+
+@njit(cache=True)
+def _road_value(road, i, x, y, yaw):
+    """Road-edge function i of :class:`~trustnav.control.barrier.RoadEdgeBarrier` at a world
+    position and heading; ``road`` = (start x, start y, normal x, normal y, room left, room right,
+    front, 1 - gamma). Returns (h, dh/dx, dh/dy, dh/dyaw)."""
+    nx_, ny_ = road[2], road[3]
+    d = (x - road[0]) * nx_ + (y - road[1]) * ny_
+    sign = -1.0 if i % 2 == 0 else 1.0  # left edge: room - d, right edge: d + room
+    room = road[4] if i % 2 == 0 else road[5]
+    if i < 2:
+        return room + sign * d, sign * nx_, sign * ny_, 0.0
+    front = road[6]
+    c, s = math.cos(yaw), math.sin(yaw)
+    df = d + front * (c * nx_ + s * ny_)
+    turn = front * (-s * nx_ + c * ny_)
+    return room + sign * df, sign * nx_, sign * ny_, sign * turn
+
+
+@njit(cache=True)
+def road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, nsimple):
+    """The rows of `cbf_discrete` of a road's edges (``n_road`` functions: 2, or 4 with the car's
+    front) at the states ``xs`` (ego-centred, about ``ox, oy``) and their sensitivities: row
+    k * stride + n_p + i is h_i(x(k+1)) - (1 - gamma) h_i(x(k)), as
+    :meth:`MpcProblem._fill_user_rows` builds it for the barrier through its protocol."""
+    n_h = xs.shape[0] - 1
+    n = sens.shape[2]
+    omg = road[7]
+    nxs = xs.shape[1]
+    for k in range(n_h):
+        for i in range(n_road):
+            yaw0 = xs[k, 2] if nxs > 2 else 0.0
+            yaw1 = xs[k + 1, 2] if nxs > 2 else 0.0
+            h0, gx0, gy0, gw0 = _road_value(road, i, xs[k, 0] + ox, xs[k, 1] + oy, yaw0)
+            h1, gx1, gy1, gw1 = _road_value(road, i, xs[k + 1, 0] + ox, xs[k + 1, 1] + oy, yaw1)
+            r = k * stride + n_p + i
+            val = h1 - omg * h0
+            g[r] = val
+            for c in range(n):
+                j1 = gx1 * sens[k + 1, 0, c] + gy1 * sens[k + 1, 1, c]
+                j0 = gx0 * sens[k, 0, c] + gy0 * sens[k, 1, c]
+                if i >= 2:
+                    j1 += gw1 * sens[k + 1, 2, c]
+                    j0 += gw0 * sens[k, 2, c]
+                a_mat[r, c] = j1 - omg * j0
+            bl[nsimple + r] = -val
+            bu[nsimple + r] = INF
+
+
+ARMIJO = 1e-4  # sufficient decrease of the SQP's line search on the L1 merit (a share of its slope)
+
+
+@njit(cache=True)
+def merit_violation(bl, bu, nsimple, first):
+    """The L1 merit's violation at the QP's point (dU = 0): sum over the rows from ``first`` on of
+    how far each misses its bounds, max(0, bl) + max(0, -bu) (CBF rows: max(0, -row); the model's
+    state rows, e.g. the bicycle's speed bounds, too, so that a step the QP takes to restore them
+    is not judged by the cost alone)."""
+    total = 0.0
+    for r in range(nsimple + first, bl.shape[0]):
+        if bl[r] > 0.0:
+            total += bl[r]
+        if bu[r] < 0.0:
+            total -= bu[r]
+    return total
+
+
+@njit(cache=True)
+def merit_slope(f, step, n, mu, violation):
+    """Directional derivative bound of the L1 merit cost + mu * violation along a QP step that
+    meets the linearised rows: f . step - mu * violation, and never above 0."""
+    s = 0.0
+    for i in range(n):
+        s += f[i] * step[i]
+    s -= mu * violation
+    return min(s, 0.0)

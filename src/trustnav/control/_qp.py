@@ -22,6 +22,7 @@ from numba import njit, types
 from numpy.typing import NDArray
 
 from trustnav.control._kernels import (
+    ARMIJO,
     CURVATURE_START,
     INF,
     bicycle_qp,
@@ -29,7 +30,10 @@ from trustnav.control._kernels import (
     clip_plan,
     flat_hessian,
     lane_march,
+    merit_slope,
+    merit_violation,
     one_minus_gamma,
+    road_fill,
     row_violations,
     shift_plan,
     single_integrator_curvature,
@@ -181,17 +185,26 @@ def single_integrator_full_steps(
                 )
                 return it, 1, cost, flag
             continue
-        merit0 = cost + mu * _violation(g)
+        viol0 = merit_violation(bl, bu, n, 0)
+        merit0 = cost + mu * viol0
+        slope = merit_slope(f, xsol, n, mu, viol0)
         alpha = 1.0
         c1 = cost
+        accepted = False
         for _ in range(8):
             _trial_point(u, xsol, alpha, ulo, uhi, trial)
             c1 = single_integrator_qp(
                 x0, trial, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
             )
-            if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
+            if c1 + mu * merit_violation(bl, bu, n, 0) <= merit0 + ARMIJO * alpha * slope + 1e-12 * (1.0 + abs(merit0)):
+                accepted = True
                 break
             alpha *= 0.5
+        if not accepted:  # no decrease of the merit along the QP's step: no progress is possible here
+            cost = single_integrator_qp(
+                x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+            )
+            return it, 1, cost, flag
         step = _accept(u, trial, xsol, step)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
         if alpha * step < tol:
@@ -310,7 +323,7 @@ def bicycle_step(
     it, state, cost, _ = bicycle_steps(
         max_it, tol, mu, u, seen, trial, x0, u_prev, pts, yaw, speed, weights, wheelbase, vmin, vmax, peds, vels,
         omg, r2, dt, n_sub, timing, n_p, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, sense,
-        xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+        xsol, lam, result_words, result_addr, problem_addr, settings_addr, 0.0, 0.0, np.zeros(8), 0,
     )  # fmt: skip
     first = worst = limit = decided = 0.0
     if state > 0:
@@ -356,27 +369,21 @@ def _accept(u, trial, xsol, step):
 
 
 @njit(cache=True)
-def _violation(g):
-    total = 0.0
-    for i in range(g.shape[0]):
-        if g[i] < 0.0:
-            total -= g[i]
-    return total
-
-
-@njit(cache=True)
 def bicycle_steps(
     max_it, tol, mu, u, seen, trial, x0, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds,
     vels, omg, r2, dt, n_sub, timing, stride, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
-    sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+    sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, ox, oy, road, n_road,
 ):  # fmt: skip
     """SQP iterations of the kinematic-bicycle problem from ``u`` (changed in place), as
     :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them for a nonlinear
     problem: the QP at u (DAQP, warm-started as in :func:`single_integrator_full_steps`), then a
     backtracking line search (at most 8 halvings) on the L1 merit cost + mu * sum max(0, -row);
-    stop when alpha max |dU| < tol. Returns as :func:`single_integrator_full_steps`."""
+    stop when alpha max |dU| < tol. Returns as :func:`single_integrator_full_steps`. ``n_road`` > 0:
+    the rows of a road's edges (:func:`~trustnav.control._kernels.road_fill`, ``road`` its data, the
+    ego-centred states about ``ox, oy``) after the pedestrians' at every step of the horizon."""
     n_h = u.shape[0]
     n = 2 * n_h
+    n_p = peds.shape[0]
     cost = 0.0
     flag = 0
     fresh = False
@@ -386,6 +393,8 @@ def bicycle_steps(
                 x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
                 n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
             )  # fmt: skip
+            if n_road:
+                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
             for r in range(n_decided):
                 bl[n + r] = -INF
         _warm_start(sense, lam)
@@ -396,20 +405,37 @@ def bicycle_steps(
         for k in range(n_h):
             seen[it - 1, k, 0] = u[k, 0]
             seen[it - 1, k, 1] = u[k, 1]
-        merit0 = cost + mu * _violation(g)
+        viol0 = merit_violation(bl, bu, n, n_decided)
+        merit0 = cost + mu * viol0
+        slope = merit_slope(f, xsol, n, mu, viol0)
         alpha = 1.0
         c1 = cost
+        accepted = False
         for _ in range(8):
             _trial_point(u, xsol, alpha, ulo, uhi, trial)
             c1 = bicycle_qp(
                 x0, trial, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
                 n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
             )  # fmt: skip
+            if n_road:
+                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
             for r in range(n_decided):
                 bl[n + r] = -INF
-            if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
+            trial_merit = c1 + mu * merit_violation(bl, bu, n, n_decided)
+            if trial_merit <= merit0 + ARMIJO * alpha * slope + 1e-12 * (1.0 + abs(merit0)):
+                accepted = True
                 break
             alpha *= 0.5
+        if not accepted:  # no decrease of the merit along the QP's step: no progress is possible here
+            cost = bicycle_qp(
+                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
+                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+            )  # fmt: skip
+            if n_road:
+                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
+            for r in range(n_decided):
+                bl[n + r] = -INF
+            return it, 1, cost, flag
         step = _accept(u, trial, xsol, 0.0)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
         if alpha * step < tol:

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
 from trustnav.control import _qp, starts
-from trustnav.control.barrier import TIMINGS, Barrier, PedestrianBarrier, Timing, cbf_rows
+from trustnav.control.barrier import TIMINGS, Barrier, PedestrianBarrier, RoadEdgeBarrier, Timing, cbf_rows
 from trustnav.control.costs import (
     Cost,
     LaneStage,
@@ -294,6 +294,15 @@ class MpcProblem:
         # an exact-Hessian SQP where the rows' curvature is known in closed form (the single
         # integrator tracking a velocity: positions linear in U, cost Hessian 2 I); H then holds the
         # curvature of the last hard QP's multipliers (`curve`) or the cost's alone (`flatten`)
+        # a road's edges as the only user barrier: its rows are built by a compiled kernel, in the
+        # compiled SQP loop too (the drive's controller); (start, normal, room, front, 1 - gamma)
+        self._road = None
+        self._n_road = 0
+        if len(self.barriers) == 1 and type(self.barriers[0]) is RoadEdgeBarrier:
+            b = self.barriers[0]
+            if b.front == 0 or model.nx > 2:
+                self._road = np.array([*b.start, *b.normal, *b.room, b.front, 1.0 - b.gamma])
+                self._n_road = b.size()
         self.exact_capable = self._fused is _fused_single_integrator
         self.exact_hessian = self.exact_capable  # the solver may turn it off (SqpSolver(hessian=...))
         self._curved = False
@@ -456,7 +465,8 @@ class MpcProblem:
         models and costs, user barriers, no rows, DAQP's C API unavailable). Returns (iterations,
         state, cost, DAQP flag, the iterates whose QP was solved)."""
         fused = self._fused
-        if fused is None or self.n_user or self.m == 0 or not _qp.AVAILABLE:
+        road = self.n_user and self._road is not None and fused is _fused_bicycle  # the drive's controller
+        if fused is None or (self.n_user and not road) or self.m == 0 or not _qp.AVAILABLE:
             return None
         if fused is not _fused_single_integrator and fused is not _fused_bicycle:
             return None
@@ -483,7 +493,8 @@ class MpcProblem:
                 max_it, tol, merit_weight, u, seen, np.empty_like(u), self.x0, self.u_prev, st.points, st.yaw,
                 st.speed, w, wheelbase, vmin, vmax, self.peds, self.vels, self.one_minus_gamma, self.r2, dt, n_sub,
                 self.timing_code, self.n_obs, self.m_cbf, self.n_decided, self.ulo, self.uhi, self.xs, self.sens,
-                self.H, self.f, self.A, self.bl, self.bu, self.g, *tail,
+                self.H, self.f, self.A, self.bl, self.bu, self.g, *tail, float(self.origin[0]), float(self.origin[1]),
+                self._road if road else _NO_ROAD, self._n_road if road else 0,
             )  # fmt: skip
         return it, state, cost, flag, seen[: it - 1 if state < 0 else it]
 
@@ -662,6 +673,10 @@ class MpcProblem:
         return g, (np.concatenate(jacs, axis=1) if sens is not None else None)
 
     def _fill_user_rows(self) -> None:
+        if self._road is not None:  # a road's edges: compiled, as the compiled SQP loop builds them
+            kern.road_fill(self.xs, self.sens, float(self.origin[0]), float(self.origin[1]), self._road, self._n_road,
+                           self.n_obs, self.n_p, self.A, self.bl, self.bu, self.g, self.n)  # fmt: skip
+            return
         g, jac = self._user_rows(self.xs, self.sens)
         rows = (np.arange(self.n_h)[:, None] * self.n_obs + self.n_p + np.arange(self.n_user)[None, :]).ravel()
         self.g[rows] = g.ravel()
@@ -757,6 +772,9 @@ class MpcProblem:
     def decision_rows_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
         """The rows an input sequence can change: :meth:`constraints_np` without the decided rows."""
         return self.constraints_np(u_flat)[self.n_decided :]
+
+
+_NO_ROAD = np.zeros(8)  # the compiled bicycle loop's road argument where there is none
 
 
 def whole_step_kernel_loaded() -> None:

@@ -640,15 +640,29 @@ class SqpSolver:
         d = s.step.reshape(s.u.shape)
         alpha = 1.0
         if p.nonlinear or s.it > self.full_step_iterations:
-            viol0 = float(np.maximum(0.0, -p.g).sum())
-            mu = 10.0 * self.slack_penalty if s.slack is not None else MERIT_WEIGHT
+            if s.slack is not None:  # relaxed: the CBF rows' violation, a simple decrease (as before)
+                mu = 10.0 * self.slack_penalty
+                viol0, slope = float(np.maximum(0.0, -p.g).sum()), 0.0
+            else:  # Armijo on cost + mu * the violation of every row (the compiled loops' arithmetic)
+                mu = MERIT_WEIGHT
+                viol0 = kern.merit_violation(p.bl, p.bu, p.n, p.n_decided)
+                slope = kern.merit_slope(p.f, s.step, p.n, mu, viol0)
             merit0 = s.cost + mu * viol0
+            accepted = False
             for _ in range(8):
                 trial = np.minimum(np.maximum(s.u + alpha * d, p.ulo), p.uhi)  # np.clip, without its overhead
                 c1 = p.build(trial)
-                if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
+                if s.slack is not None:
+                    v1 = float(np.maximum(0.0, -p.g).sum())
+                else:
+                    v1 = kern.merit_violation(p.bl, p.bu, p.n, p.n_decided)
+                if c1 + mu * v1 <= merit0 + kern.ARMIJO * alpha * slope + 1e-12 * (1 + abs(merit0)):
+                    accepted = True
                     break
                 alpha *= 0.5
+            if not accepted and s.slack is None:  # no decrease of the merit along the step: stop here
+                s.fresh = False
+                return 0.0
             s.u, s.cost, s.fresh = trial, c1, True  # the last build was at this trial: reuse it
         else:
             s.u = s.u + alpha * d  # the QP keeps u + d within the input bounds (to DAQP's tolerance)
