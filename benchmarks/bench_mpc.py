@@ -595,9 +595,10 @@ def main() -> None:
     args = ap.parse_args()
     if args.quick:
         cases = [("single_integrator", 2, 7, "paper-2", 20), ("single_integrator", 2, 7, 1, 20),
-                 ("single_integrator", 10, 20, 1, 3), ("bicycle", 10, 7, 1, 3)]  # fmt: skip
+                 ("single_integrator", 10, 20, 1, 3), ("bicycle", 10, 7, 1, 3),
+                 ("bicycle_drive", 2, 7, 0, 0)]  # fmt: skip
     else:
-        cases = [("single_integrator", 2, 7, "paper-2", 100)]
+        cases = [("single_integrator", 2, 7, "paper-2", 100), ("bicycle_drive", 2, 7, 0, 0)]
         for model in ("single_integrator", "bicycle"):
             for n_p in (2, 10, 50):
                 for n_h in (7, 20):
@@ -617,6 +618,22 @@ def main() -> None:
           "max input diff (SQP / IPOPT) | failures (default / CasADi SQP / IPOPT) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for model, n_p, n_h, seed, bsteps in cases:
+        if model == "bicycle_drive":  # the drive's controller at the states of a Case I drive
+            r = run_drive_case(int(seed), use_casadi)
+            rows.append(r)
+            sqp = r["casadi_sqp_median_ms"]
+            ratio = (
+                "n/a"
+                if not sqp
+                else f"{r['default_median_ms'] / sqp:.2f}, {r['default_p95_ms'] / r['casadi_sqp_p95_ms']:.2f}"
+            )
+            print(f"| {model} | {r['case']} | {r['n_p']} x {n_h} "
+                  f"| {r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f} / {r['default_max_ms']:.3f} | n/a | n/a "
+                  f"| {r['iterations_median']:.0f} / {r['iterations_p95']:.0f} / {r['iterations_max']}, "
+                  f"{100 * r['at_iteration_limit_share']:.1f} % | {_fmt(sqp)} / {_fmt(r['casadi_sqp_p95_ms'])} | n/a "
+                  f"| {ratio} | {_fmt(r['casadi_sqp_max_input_diff'], '.1e')} / n/a "
+                  f"| {r['failures']} / {_fmt(r['casadi_sqp_failures'], 'd')} / n/a |", flush=True)  # fmt: skip
+            continue
         r = run_case(model, n_p, n_h, seed, args.steps, 0 if args.no_slsqp else bsteps, args.per_row_baseline,
                      use_casadi)  # fmt: skip
         rows.append(r)
@@ -640,7 +657,7 @@ def main() -> None:
               "of one solver call from Python; the default's are whole controller steps. Input differences are "
               "taken where both solvers converged (the default OPTIMAL), over the whole planned horizon.")  # fmt: skip
     if not args.no_slsqp:
-        _slsqp_table(rows)
+        _slsqp_table([r for r in rows if r["model"] != "bicycle_drive"])
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)

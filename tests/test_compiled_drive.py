@@ -3,10 +3,14 @@ SQP iterations in the compiled loop, with the same result as the general path.""
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trustnav.control import KinematicBicycle, LaneTrackingCost, MpcConfig, MpcController, SqpSolver
-from trustnav.control.barrier import RoadEdgeBarrier
+from trustnav.control.barrier import RoadEdgeBarrier, uncertainty_margins
 from trustnav.control.reference import BoundedProportionalReference
 
 
@@ -62,3 +66,26 @@ def test_compiled_road_rows_match_the_barrier_protocol():
         rows = (np.arange(p.n_h)[:, None] * p.n_obs + p.n_p + np.arange(p.n_user)[None, :]).ravel()
         np.testing.assert_allclose(p.g[rows], g.ravel(), atol=1e-12)
         np.testing.assert_allclose(p.A[rows], jac.reshape(-1, p.n), atol=1e-12)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 4), lead=st.floats(0.0, 2.0), on_top=st.booleans())
+def test_compiled_margins_are_the_formula(seed, n, lead, on_top):
+    """uncertainty_margins (compiled for (N, 4, 4) covariances) against its formula in numpy: z sqrt(n' S n)
+    with S = P_pp + T (P_pv + P_vp) + T^2 P_vv, the largest eigenvalue at the ego's own position."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(n, 4, 4))
+    cov = a @ np.transpose(a, (0, 2, 1))
+    ego, peds = rng.normal(size=2) * 5, rng.normal(size=(n, 2)) * 5
+    if n and on_top:
+        peds[0] = ego
+    got = uncertainty_margins(ego, peds, cov, lead, 0.9)
+    s = cov[:, :2, :2] + lead * (cov[:, :2, 2:] + cov[:, 2:, :2]) + lead * lead * cov[:, 2:, 2:]
+    s = 0.5 * (s + np.transpose(s, (0, 2, 1)))
+    d = ego[None] - peds
+    dist = np.linalg.norm(d, axis=1)
+    var = np.linalg.eigvalsh(s)[:, -1] if n else np.zeros(0)
+    ok = dist > 1e-9
+    u = d[ok] / dist[ok, None]
+    var[ok] = np.einsum("ni,nij,nj->n", u, s[ok], u)
+    np.testing.assert_allclose(got, NormalDist().inv_cdf(0.9) * np.sqrt(np.maximum(var, 0.0)), atol=1e-12, rtol=1e-12)

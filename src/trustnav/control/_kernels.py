@@ -525,3 +525,12 @@ def merit_slope(f, step, n, mu, violation):
         s += f[i] * step[i]
     s -= mu * violation
     return min(s, 0.0)
+
+
+@njit(cache=True)
+def bicycle_advance(px, py, yaw, v, turn, acc, h, n, out):
+    """``n`` Euler sub-steps of ``h`` of the kinematic bicycle (:meth:`KinematicBicycle.step`) with
+    the input held (``turn`` = tan(steer) / wheelbase); the state into ``out``."""
+    for _ in range(n):
+        px, py, yaw, v = px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h, yaw + v * turn * h, v + acc * h
+    out[0], out[1], out[2], out[3] = px, py, yaw, v

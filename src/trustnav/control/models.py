@@ -230,11 +230,9 @@ class KinematicBicycle(DynamicsModel):
         px, py, yaw, v = (float(c) for c in np.asarray(x, dtype=float))
         steer, acc = (float(c) for c in np.asarray(u, dtype=float))
         n = self.substeps(dt)
-        h = dt / n
-        turn = math.tan(steer) / self.wheelbase
-        for _ in range(n):
-            px, py, yaw, v = px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h, yaw + v * turn * h, v + acc * h
-        return np.array([px, py, yaw, v])
+        out = np.empty(4)
+        kern.bicycle_advance(px, py, yaw, v, math.tan(steer) / self.wheelbase, acc, dt / n, n, out)  # compiled
+        return out
 
     def jacobians(self, x: ArrayLike, u: ArrayLike, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         xs = np.asarray(x, dtype=float).copy()
