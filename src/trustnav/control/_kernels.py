@@ -534,3 +534,87 @@ def bicycle_advance(px, py, yaw, v, turn, acc, h, n, out):
     for _ in range(n):
         px, py, yaw, v = px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h, yaw + v * turn * h, v + acc * h
     out[0], out[1], out[2], out[3] = px, py, yaw, v
+
+
+@njit
+def user_sensitivities(step_fn, jacobian_fn, x0, u, dt, xs, sens):
+    """States x_0..x_N and their sensitivities dx_k/dU (S_{k+1} = A_k S_k + B_k E_k) of a model
+    whose one step and Jacobians are the user's compiled functions ``step_fn(x, u, dt, out)`` and
+    ``jacobian_fn(x, u, dt, a, b)`` (:class:`~trustnav.control.models.CompiledDynamics`); one
+    compiled loop instead of a Python call per step. Not cached: numba compiles it once per pair
+    of user functions in a process."""
+    n_h, nu = u.shape
+    nx = x0.shape[0]
+    n = n_h * nu
+    a = np.empty((nx, nx))
+    b = np.empty((nx, nu))
+    for i in range(nx):
+        xs[0, i] = x0[i]
+        for c in range(n):
+            sens[0, i, c] = 0.0
+    for k in range(n_h):
+        jacobian_fn(xs[k], u[k], dt, a, b)
+        cols = (k + 1) * nu  # inputs after u_k do not move x(k+1)
+        for i in range(nx):
+            for c in range(cols):
+                acc = 0.0
+                for j in range(nx):
+                    acc += a[i, j] * sens[k, j, c]
+                sens[k + 1, i, c] = acc
+            for c in range(cols, n):
+                sens[k + 1, i, c] = 0.0
+            for d in range(nu):
+                sens[k + 1, i, k * nu + d] += b[i, d]
+        step_fn(xs[k], u[k], dt, xs[k + 1])
+
+
+@njit
+def user_rollout(step_fn, x0, u, dt, xs):
+    """States x_0..x_N of a :class:`~trustnav.control.models.CompiledDynamics` model."""
+    for i in range(x0.shape[0]):
+        xs[0, i] = x0[i]
+    for k in range(u.shape[0]):
+        step_fn(xs[k], u[k], dt, xs[k + 1])
+
+
+@njit(cache=True)
+def position_tracking(stage, xs, sens, u, u_prev, wp, wu, wr, hessian, gradient):
+    """:class:`~trustnav.control.costs.PositionTrackingCost`'s Gauss-Newton model in one compiled
+    pass: cost wp sum ||p(k+1) - x_bar(k+1)||^2 + wu sum ||u(k)||^2 + wr sum ||u(k) - u(k-1)||^2,
+    H = 2 J' W J + 1e-9 I and gradient 2 J' W r in place (positions' Jacobian from ``sens``)."""
+    n_h, nu = u.shape
+    n = n_h * nu
+    cost = 0.0
+    for i in range(n):
+        gradient[i] = 0.0
+        for j in range(n):
+            hessian[i, j] = 0.0
+    for k in range(n_h):
+        for d in range(2):
+            r = xs[k + 1, d] - stage[k, d]
+            cost += wp * r * r
+            for i in range(n):
+                s_i = sens[k + 1, d, i]
+                if s_i == 0.0:
+                    continue
+                gradient[i] += 2.0 * wp * s_i * r
+                for j in range(n):
+                    hessian[i, j] += 2.0 * wp * s_i * sens[k + 1, d, j]
+        for d in range(nu):
+            i = k * nu + d
+            cost += wu * u[k, d] * u[k, d]
+            gradient[i] += 2.0 * wu * u[k, d]
+            hessian[i, i] += 2.0 * wu
+            prev = u_prev[d] if k == 0 else u[k - 1, d]
+            rate = u[k, d] - prev
+            cost += wr * rate * rate
+            gradient[i] += 2.0 * wr * rate  # d rate_k / d u_k = 1, d rate_{k+1} / d u_k = -1
+            hessian[i, i] += 2.0 * wr
+            if k > 0:
+                gradient[i - nu] -= 2.0 * wr * rate
+                hessian[i - nu, i - nu] += 2.0 * wr
+                hessian[i, i - nu] -= 2.0 * wr
+                hessian[i - nu, i] -= 2.0 * wr
+    for i in range(n):
+        hessian[i, i] += 1e-9
+    return cost

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
 
-__all__ = ["Dynamics", "DynamicsModel", "KinematicBicycle", "SingleIntegrator", "StateRow"]
+__all__ = ["CompiledDynamics", "Dynamics", "DynamicsModel", "KinematicBicycle", "SingleIntegrator", "StateRow"]
 
 
 @runtime_checkable
@@ -131,6 +131,51 @@ class DynamicsModel:
         if arr.shape != (self.nx,) or not math.isfinite(sum(arr.tolist())):
             raise ValueError(f"{self.name} state must be {self.nx} finite numbers, got {x!r}")
         return arr
+
+
+class CompiledDynamics(DynamicsModel):
+    """A model of the user's at compiled speed: its one step and Jacobians are numba functions
+    (``@numba.njit``) of plain arrays, given as the class attributes
+
+    * ``step_kernel(x, u, dt, out)``: write x(k+1) of one step of ``dt`` from x = x(k), u into ``out``;
+    * ``jacobian_kernel(x, u, dt, a, b)``: write A = df/dx (nx, nx) and B = df/du (nx, nu) of that step.
+
+    (wrap each in ``staticmethod``). The rollout and the sensitivities dx(k)/dU the SQP linearises
+    with run in one compiled loop that calls them (:func:`~trustnav.control._kernels.user_sensitivities`)
+    instead of a Python call per step and sub-step; ``step`` and ``jacobians`` call them too. Everything
+    else is :class:`DynamicsModel`'s (bounds, fallbacks, hooks). See ``examples/custom_dynamics.py``."""
+
+    step_kernel: Any = None
+    jacobian_kernel: Any = None
+
+    def step(self, x: ArrayLike, u: ArrayLike, dt: float) -> NDArray[np.float64]:
+        out = np.empty(self.nx)
+        self.step_kernel(_f64(x), _f64(u), float(dt), out)
+        return out
+
+    def jacobians(self, x: ArrayLike, u: ArrayLike, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        a, b = np.empty((self.nx, self.nx)), np.empty((self.nx, self.nu))
+        self.jacobian_kernel(_f64(x), _f64(u), float(dt), a, b)
+        return a, b
+
+    def sensitivities(
+        self, x0: ArrayLike, inputs: ArrayLike, dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        u = _f64(inputs).reshape(-1, self.nu)
+        xs = np.empty((u.shape[0] + 1, self.nx))
+        sens = np.empty((u.shape[0] + 1, self.nx, u.size))
+        kern.user_sensitivities(self.step_kernel, self.jacobian_kernel, _f64(x0), u, float(dt), xs, sens)
+        return xs, sens
+
+    def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
+        u = _f64(inputs).reshape(-1, self.nu)
+        xs = np.empty((u.shape[0] + 1, self.nx))
+        kern.user_rollout(self.step_kernel, _f64(x0), u, float(dt), xs)
+        return xs
+
+
+def _f64(a: ArrayLike) -> NDArray[np.float64]:
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 @dataclass(frozen=True)
