@@ -423,6 +423,24 @@ def run_drive_case(seed: int = 0, casadi: bool = True) -> dict:
     return row
 
 
+def drive_solve_times(seeds: int, casadi: bool) -> dict:
+    """``trustnav drive case-1 --sensing keypoints`` for seeds 0..seeds-1: the controller's solve
+    time per step (``MpcSolution.solve_time``, the whole step) pooled over the drives, beside the
+    bicycle 10 x 7 row measured in the same run."""
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+
+    sc = load_drive_scenario("case-1")
+    times = np.concatenate([run_drive(sc, "keypoints", seed=s).solve_times for s in range(seeds)])
+    row = run_case("bicycle", 10, 7, 1, 100, 0, casadi=casadi)
+    out = {"drive_seeds": seeds, "drive_steps": int(times.size), "drive_median_ms": _ms(times),
+           "drive_p95_ms": _ms(times, 95), "bench_median_ms": row["default_median_ms"],
+           "bench_p95_ms": row["default_p95_ms"], "bench_alone_median_ms": row["alone_median_ms"],
+           "bench_alone_p95_ms": row["alone_p95_ms"], "load_1min": os.getloadavg()[0]}  # fmt: skip
+    out["median_ratio"] = out["drive_median_ms"] / out["bench_median_ms"]
+    out["p95_ratio"] = out["drive_p95_ms"] / out["bench_p95_ms"]
+    return out
+
+
 def _replay(ctl: MpcController, args: tuple):
     pos = [a for a in args if not isinstance(a, tuple)]
     kw = dict(a for a in args if isinstance(a, tuple))
@@ -592,6 +610,8 @@ def main() -> None:
                     help="tuned baseline with one closure per CBF row (slower)")  # fmt: skip
     ap.add_argument("--no-slsqp", action="store_true", help="skip the SLSQP baselines")
     ap.add_argument("--no-casadi", action="store_true", help="skip CasADi even when it is installed")
+    ap.add_argument("--drive-seeds", type=int, default=0,
+                    help="also: Case I keypoint drives of these many seeds against the bicycle 10 x 7 row")  # fmt: skip
     args = ap.parse_args()
     if args.quick:
         cases = [("single_integrator", 2, 7, "paper-2", 20), ("single_integrator", 2, 7, 1, 20),
@@ -658,6 +678,15 @@ def main() -> None:
               "taken where both solvers converged (the default OPTIMAL), over the whole planned horizon.")  # fmt: skip
     if not args.no_slsqp:
         _slsqp_table([r for r in rows if r["model"] != "bicycle_drive"])
+    if args.drive_seeds > 0:
+        d = drive_solve_times(args.drive_seeds, use_casadi)
+        print(f"\ntrustnav drive case-1 --sensing keypoints, seeds 0-{d['drive_seeds'] - 1} "
+              f"({d['drive_steps']} steps): "
+              f"solve median {d['drive_median_ms']:.3f} ms, p95 {d['drive_p95_ms']:.3f} ms; the bicycle 10 x 7 row "
+              f"in the same run {d['bench_median_ms']:.3f} / {d['bench_p95_ms']:.3f} ms (alone "
+              f"{d['bench_alone_median_ms']:.3f} / {d['bench_alone_p95_ms']:.3f}): {d['median_ratio']:.2f}x median "
+              f"(bar <= 2), {d['p95_ratio']:.2f}x p95 (bar <= 4); load {d['load_1min']:.2f}")  # fmt: skip
+        rows.append({"model": "drive_case1_keypoints", **d})
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)
