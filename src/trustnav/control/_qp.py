@@ -3,9 +3,11 @@
 The SQP of :class:`~trustnav.control.solvers.SqpSolver` spends most of a control step outside the
 QP when each iteration goes through Python (kernel dispatch, DAQP's Python wrapper, the step).
 For the fused single-integrator and bicycle problems, :func:`single_integrator_full_steps` (full
-steps) and :func:`bicycle_steps` (L1-merit line search) run them in one compiled call: build the
-QP (`cbf_imp` linearised, the fused kernels of :mod:`trustnav.control._kernels`), solve it with
-DAQP's C API, step, repeat. The three structures of that API (problem, settings, result) are
+steps, then the line search; the rows' curvature in the Hessian from the fifth QP) and
+:func:`bicycle_steps` (Armijo line search on the L1 merit; a road's edges too) run them in one
+compiled call: build the QP (`cbf_imp` linearised, the fused kernels of
+:mod:`trustnav.control._kernels`), solve it with DAQP's C API, step, repeat. The three
+structures of that API (problem, settings, result) are
 filled here with the layout of daqp 0.11's ``types.h`` / ``api.h``; the layout is checked at
 import against DAQP's own defaults, and a mismatch (another DAQP build) leaves :data:`AVAILABLE`
 False, so the solver keeps its Python path.

@@ -108,8 +108,12 @@ class SqpSolver:
     slacks with an exact L1 penalty ``slack_penalty`` (plus a tiny quadratic term), one per CBF
     row for the most binding pedestrians and fewer, shared ones for the rest
     (:meth:`_slack_columns`), so the QP stays small with hundreds of pedestrians; a hard-feasible
-    plan seen on the way beats a relaxed one. Nonlinear models take a backtracking step on an L1
-    merit. ``hessian="exact"`` (default): where the rows' curvature is known in closed form (the
+    plan seen on the way beats a relaxed one. Nonlinear models (and linear ones after
+    ``full_step_iterations``) take a backtracking step on the L1 merit cost + mu * (violation of
+    every row the QP holds), accepted on Armijo's sufficient decrease; when no trial decreases the
+    merit, the solve ends at the iterate (no progress is possible along the QP's step), so the
+    iteration limit is reached only by steps that keep making progress. ``hessian="exact"``
+    (default): where the rows' curvature is known in closed form (the
     single integrator tracking a velocity, :attr:`MpcProblem.exact_capable`), every QP after a
     solve's fourth (``_kernels.CURVATURE_START``: steps that converge in four stay as they were)
     adds it, weighted by the last hard QP's multipliers and convexified by clipping eigenvalues
