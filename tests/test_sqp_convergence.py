@@ -77,7 +77,7 @@ def test_exact_hessian_converges_where_gauss_newton_hit_the_limit():
     assert limit_old >= 3  # the test's worlds are hard enough to matter
     assert limit_new == 0
     assert compared > 200
-    assert sum(its_new) < 0.8 * sum(its_old)  # 1553 against 2197 when written
+    assert sum(its_new) < 0.8 * sum(its_old)  # 1644 against 2197 when written
 
 
 def test_compiled_loop_and_general_path_agree_with_the_exact_hessian():

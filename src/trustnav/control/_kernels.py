@@ -23,7 +23,7 @@ from trustnav.control.barrier import h_quad
 
 INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
 # the exact-Hessian SQP's QPs after this iteration add the rows' curvature
-CURVATURE_START = 4
+CURVATURE_START = 6
 CURVATURE_FLOOR = 1e-2  # eigenvalue floor of the exact-Hessian SQP's (I + dt^2 C), see single_integrator_curvature
 
 

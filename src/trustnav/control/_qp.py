@@ -3,7 +3,7 @@
 The SQP of :class:`~trustnav.control.solvers.SqpSolver` spends most of a control step outside the
 QP when each iteration goes through Python (kernel dispatch, DAQP's Python wrapper, the step).
 For the fused single-integrator and bicycle problems, :func:`single_integrator_full_steps` (full
-steps, then the line search; the rows' curvature in the Hessian from the fifth QP) and
+steps, then the line search; the rows' curvature in the Hessian from the seventh QP) and
 :func:`bicycle_steps` (Armijo line search on the L1 merit; a road's edges too) run them in one
 compiled call: build the QP (`cbf_imp` linearised, the fused kernels of
 :mod:`trustnav.control._kernels`), solve it with DAQP's C API, step, repeat. The three

@@ -115,7 +115,7 @@ class SqpSolver:
     iteration limit is reached only by steps that keep making progress. ``hessian="exact"``
     (default): where the rows' curvature is known in closed form (the
     single integrator tracking a velocity, :attr:`MpcProblem.exact_capable`), every QP after a
-    solve's fourth (``_kernels.CURVATURE_START``: steps that converge in four stay as they were)
+    solve's sixth (``_kernels.CURVATURE_START``: steps that converge in six stay as they were)
     adds it, weighted by the last hard QP's multipliers and convexified by clipping eigenvalues
     (an exact-Hessian SQP, converging in a few iterations where many rows are active);
     ``"gauss-newton"``: the cost's Hessian alone, as before issue 36. Every point evaluated is
