@@ -455,6 +455,7 @@ def _floor(ctl: MpcController, plan: np.ndarray, iterations: int, qp: dict) -> f
     p = ctl.problem
     best = math.inf
     for _ in range(3):
+        p.flatten()  # the cost's Hessian (the exact-Hessian SQP's later QPs cost a little more)
         t0 = time.perf_counter()
         p.build(plan)
         model = qp.get("model")
