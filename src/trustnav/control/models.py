@@ -272,8 +272,8 @@ class KinematicBicycle(DynamicsModel):
         return max(1, math.ceil(dt / self.integration_step - 1e-9))
 
     def step(self, x: ArrayLike, u: ArrayLike, dt: float) -> NDArray[np.float64]:
-        px, py, yaw, v = (float(c) for c in np.asarray(x, dtype=float))
-        steer, acc = (float(c) for c in np.asarray(u, dtype=float))
+        px, py, yaw, v = np.asarray(x, dtype=float).tolist()
+        steer, acc = np.asarray(u, dtype=float).tolist()
         n = self.substeps(dt)
         out = np.empty(4)
         kern.bicycle_advance(px, py, yaw, v, math.tan(steer) / self.wheelbase, acc, dt / n, n, out)  # compiled
