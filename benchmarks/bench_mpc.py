@@ -249,12 +249,213 @@ class CasadiMpc:
         return np.asarray(out["x"]).reshape(-1, 2), ok, dt
 
 
+class CasadiDrive:
+    """The drive's problem in CasADi, from the paper's equations as :class:`CasadiMpc`'s bicycle, with
+    what the drive's controller adds: each pedestrian's own R^2 (R plus its uncertainty margin), the
+    road's edges (`cbf_discrete` of :class:`~trustnav.control.barrier.RoadEdgeBarrier`'s functions:
+    the position's offset from the road's line, and the car's front point ``front`` ahead along its
+    heading), in the ego-centred frame of the controller's step (after its latency compensation).
+    Solved by ``sqpmethod`` + qpOASES, as the other rows."""
+
+    def __init__(self, model, cfg: MpcConfig, cost, road, n_p: int) -> None:
+        n_h, dt = cfg.horizon, cfg.dt
+        u = ca.SX.sym("u", 2 * n_h)
+        x0 = ca.SX.sym("x0", 4)
+        peds = ca.SX.sym("peds", 2 * n_p)
+        vels = ca.SX.sym("vels", 2 * n_p)
+        decay = ca.SX.sym("decay", n_p)
+        r2 = ca.SX.sym("r2", n_p)
+        ref = ca.SX.sym("ref", 3 * (n_h + 1) + 3)
+        rd = ca.SX.sym("road", 8)  # start (ego-centred), normal, room left / right, front, 1 - gamma
+        pts = ca.reshape(ref[: 2 * (n_h + 1)], 2, n_h + 1)
+        vref = ref[2 * (n_h + 1) : 3 * (n_h + 1)]
+        yaw_ref = ref[3 * (n_h + 1)]
+        u_prev = ref[3 * (n_h + 1) + 1 :]
+        n_sub = max(1, math.ceil(dt / model.integration_step - 1e-9)) if model.integration_step else 1
+        h = dt / n_sub
+        w = cost.weights
+        xs, x, obj = [x0], x0, 0
+        nrm = ca.vertcat(-ca.sin(yaw_ref), ca.cos(yaw_ref))
+        for k in range(n_h):
+            st, ac = u[2 * k], u[2 * k + 1]
+            for _ in range(n_sub):
+                x = ca.vertcat(x[0] + x[3] * ca.cos(x[2]) * h, x[1] + x[3] * ca.sin(x[2]) * h,
+                               x[2] + x[3] * ca.tan(st) / model.wheelbase * h, x[3] + ac * h)  # fmt: skip
+            xs.append(x)
+            d_head = x[2] - yaw_ref
+            prev = u_prev if k == 0 else u[2 * k - 2 : 2 * k]
+            obj += (w.cte * ca.dot(nrm, x[:2] - pts[:, k + 1]) ** 2
+                    + w.heading * ca.atan2(ca.sin(d_head), ca.cos(d_head)) ** 2
+                    + w.speed * (x[3] - vref[k + 1]) ** 2 + w.steer * st**2 + w.accel * ac**2
+                    + w.steer_rate * (st - prev[0]) ** 2 + w.accel_rate * (ac - prev[1]) ** 2)  # fmt: skip
+
+        def edges(s):  # the road's functions at state s
+            d = ca.dot(s[:2] - rd[0:2], rd[2:4])
+            out = [rd[4] - d, d + rd[5]]
+            if road.front > 0:
+                df = d + rd[6] * (ca.cos(s[2]) * rd[2] + ca.sin(s[2]) * rd[3])
+                out += [rd[4] - df, df + rd[5]]
+            return out
+
+        rows = []
+        for k in range(n_h):
+            for j in range(n_p):
+                q_k = peds[2 * j : 2 * j + 2] + k * dt * vels[2 * j : 2 * j + 2]
+                q_n = q_k + dt * vels[2 * j : 2 * j + 2] if cfg.timing == "paper" else q_k
+                rows.append(ca.sumsqr(xs[k + 1][:2] - q_n) - r2[j] - decay[j] * (ca.sumsqr(xs[k][:2] - q_k) - r2[j]))
+            for e1, e0 in zip(edges(xs[k + 1]), edges(xs[k]), strict=True):
+                rows.append(e1 - rd[7] * e0)
+        speed = [xs[k + 1][3] for k in range(n_h)]
+        self.n_obs = n_p + road.size()
+        self.n_cbf = len(rows)
+        self.decided = self.n_obs * model.decided_steps(dt)
+        g = ca.vertcat(*rows, *speed)
+        self.ng = g.shape[0]
+        lo, hi = model.input_bounds()
+        self.lbx, self.ubx = np.tile(lo, n_h), np.tile(hi, n_h)
+        t = np.arange(1, n_h + 1) * dt
+        self._speed = (lambda v0: (np.minimum(model.speed_min, v0 + t * hi[1]),
+                                   np.maximum(model.speed_max, v0 + t * lo[1])))  # fmt: skip
+        params = ca.vertcat(x0, peds, vels, decay, r2, ref, rd)
+        self.sqp = ca.nlpsol("sqp", "sqpmethod", {"x": u, "p": params, "f": obj, "g": g}, {
+            "print_time": False, "error_on_fail": False, "qpsol": "qpoases", "print_header": False,
+            "print_iteration": False, "print_status": False, "max_iter": 50, "tol_pr": 1e-9, "tol_du": 1e-9,
+            "convexify_strategy": "eigen-clip", "qpsol_options": {"printLevel": "none", "error_on_fail": False},
+        })  # fmt: skip
+        self.road = road
+
+    def arguments(self, p, u0) -> dict:
+        """Arguments for the problem the controller's last step solved (``p``: its MpcProblem)."""
+        st, road = p.stage, self.road
+        ref = np.concatenate([st.points.ravel(), st.speed, [st.yaw[0]], p.u_prev])
+        rd = np.array([*(road.start - p.origin), *road.normal, *road.room, road.front, 1.0 - road.gamma])
+        par = np.concatenate([p.x0, p.peds.ravel(), p.vels.ravel(), p.one_minus_gamma, p.r2, ref, rd])
+        lo, hi = self._speed(float(p.x0[3]))
+        lbg = np.concatenate([np.zeros(self.n_cbf), lo])
+        lbg[: self.decided] = -np.inf  # rows the state decides (none with sub-steps)
+        ubg = np.concatenate([np.full(self.n_cbf, np.inf), hi])
+        return {"x0": np.asarray(u0, dtype=float).ravel(), "p": par, "lbx": self.lbx, "ubx": self.ubx,
+                "lbg": lbg, "ubg": ubg}  # fmt: skip
+
+    def solve(self, args: dict) -> tuple[np.ndarray, bool, float]:
+        t0 = time.perf_counter()
+        out = self.sqp(**args)
+        dt = time.perf_counter() - t0
+        stats = self.sqp.stats()
+        ok = bool(stats["success"]) or stats["return_status"] == "Search_Direction_Becomes_Too_Small"
+        return np.asarray(out["x"]).reshape(-1, 2), ok, dt
+
+
+def _record_drive(seed: int):
+    """The drive scenario (Case I) and the controller's inputs at every step of its keypoint drive."""
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+
+    sc = load_drive_scenario("case-1")
+    calls = []
+    step = MpcController.step
+
+    def recorded(self, *args, **kw):
+        pos = tuple(np.array(a, dtype=float) if a is not None else None for a in args)
+        named = tuple((k, None if v is None else np.array(v, dtype=float)) for k, v in sorted(kw.items()))
+        calls.append(pos + named)
+        return step(self, *args, **kw)
+
+    MpcController.step = recorded
+    try:
+        run_drive(sc, "keypoints", seed=seed)
+    finally:
+        MpcController.step = step
+    return sc, calls
+
+
+def run_drive_case(seed: int = 0, casadi: bool = True) -> dict:
+    """The `bicycle_drive` row: the controller ``trustnav drive case-1 --sensing keypoints`` uses
+    (bicycle, road edges, radii from the tracks' covariances, latency compensation, yielding),
+    replayed at every state of that drive (seed ``seed``), CasADi SQP solving the same problem
+    (its road rows and radii included) from the controller's warm start right after it."""
+    sc, calls = _record_drive(seed)
+    model, cfg, cost = sc.vehicle.model(), sc.control.config(), sc.control.cost(sc.ego_start, sc.goal)
+    barriers = sc.control.barriers(sc.road)
+
+    def controller():
+        return MpcController(model, cost, cfg, SqpSolver(), barriers=barriers)
+
+    for args in calls[:3]:  # warm-up: numba, DAQP (a controller of its own)
+        warm = controller()
+        _replay(warm, args)
+    ctl = controller()
+    cas = {} if casadi and ca is not None else None
+    rec = {k: [] for k in ("t", "it", "sqp", "d_sqp", "np")}
+    fails, cas_fail, prev = 0, 0, None
+    for args in calls:
+        t0 = time.perf_counter()
+        sol = _replay(ctl, args)
+        rec["t"].append(time.perf_counter() - t0)
+        rec["it"].append(sol.iterations)
+        rec["np"].append(ctl.problem.n_p)
+        fails += sol.fallback or sol.status is SolveStatus.FAILED
+        if cas is not None:
+            p = ctl.problem
+            if p.n_p not in cas:
+                with _stdout_silenced():
+                    cas[p.n_p] = CasadiDrive(model, cfg, cost, barriers[0], p.n_p)
+            u0 = np.clip(np.vstack([prev[1:], prev[-1:]]), p.ulo, p.uhi) if prev is not None else np.zeros((p.n_h, 2))
+            u_c, ok, t_c = cas[p.n_p].solve(cas[p.n_p].arguments(p, u0))
+            rec["sqp"].append(t_c)
+            cas_fail += not ok
+            if ok and sol.status is SolveStatus.OPTIMAL and not sol.fallback:
+                rec["d_sqp"].append(float(np.max(np.abs(u_c - sol.inputs))))
+        prev = sol.inputs
+    its = np.array(rec["it"])
+    row = {
+        "model": "bicycle_drive", "case": f"case-1 keypoints seed {seed}", "n_p": int(max(rec["np"])),
+        "n_h": cfg.horizon, "default_median_ms": _ms(rec["t"]), "default_p95_ms": _ms(rec["t"], 95),
+        "default_max_ms": float(max(rec["t"]) * 1e3), "default_steps": len(calls),
+        "iterations_median": float(np.median(its)), "iterations_p95": float(np.percentile(its, 95)),
+        "iterations_max": int(its.max()), "at_iteration_limit_share": float(np.mean(its >= SqpSolver().max_iter)),
+        "failures": int(fails), "load_1min": os.getloadavg()[0],
+        "casadi_sqp_median_ms": _ms(rec["sqp"]) if cas is not None else None,
+        "casadi_sqp_p95_ms": _ms(rec["sqp"], 95) if cas is not None else None,
+        "casadi_sqp_failures": cas_fail if cas is not None else None,
+        "casadi_sqp_max_input_diff": float(max(rec["d_sqp"])) if rec["d_sqp"] else None,
+        "casadi_sqp_input_diff_p95": float(np.percentile(rec["d_sqp"], 95)) if rec["d_sqp"] else None,
+    }  # fmt: skip
+    return row
+
+
+def drive_solve_times(seeds: int, casadi: bool) -> dict:
+    """``trustnav drive case-1 --sensing keypoints`` for seeds 0..seeds-1: the controller's solve
+    time per step (``MpcSolution.solve_time``, the whole step) pooled over the drives, beside the
+    bicycle 10 x 7 row measured in the same run."""
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+
+    sc = load_drive_scenario("case-1")
+    times = np.concatenate([run_drive(sc, "keypoints", seed=s).solve_times for s in range(seeds)])
+    row = run_case("bicycle", 10, 7, 1, 100, 0, casadi=casadi)
+    out = {"drive_seeds": seeds, "drive_steps": int(times.size), "drive_median_ms": _ms(times),
+           "drive_p95_ms": _ms(times, 95), "bench_median_ms": row["default_median_ms"],
+           "bench_p95_ms": row["default_p95_ms"], "bench_alone_median_ms": row["alone_median_ms"],
+           "bench_alone_p95_ms": row["alone_p95_ms"], "load_1min": os.getloadavg()[0]}  # fmt: skip
+    out["median_ratio"] = out["drive_median_ms"] / out["bench_median_ms"]
+    out["p95_ratio"] = out["drive_p95_ms"] / out["bench_p95_ms"]
+    return out
+
+
+def _replay(ctl: MpcController, args: tuple):
+    pos = [a for a in args if not isinstance(a, tuple)]
+    kw = dict(a for a in args if isinstance(a, tuple))
+    if kw.get("time") is not None:
+        kw["time"] = float(kw["time"])
+    return ctl.step(*pos, **kw)
+
+
 def _floor(ctl: MpcController, plan: np.ndarray, iterations: int, qp: dict) -> float:
     """Compiled floor of one step: ``iterations`` x (fused QP build + DAQP update + solve) at
     ``plan`` (best of 3), with a DAQP workspace of the benchmark's own."""
     p = ctl.problem
     best = math.inf
     for _ in range(3):
+        p.flatten()  # the cost's Hessian (the exact-Hessian SQP's later QPs cost a little more)
         t0 = time.perf_counter()
         p.build(plan)
         model = qp.get("model")
@@ -363,7 +564,11 @@ def run_case(model_name, n_p, n_h, seed, steps, baseline_steps, per_row=False, c
         "alone_p95_ms": _ms(t_alone, 95),
         "alone_over_floor": _ms(t_alone) / _ms(rec["floor"]),
         "iterations_median": float(np.median(rec["it"])),
+        "iterations_p95": float(np.percentile(rec["it"], 95)),
         "iterations_max": int(np.max(rec["it"])),
+        # steps that ended at the SQP's iteration limit (SqpSolver.max_iter), as a share of the steps
+        "at_iteration_limit_share": float(np.mean(np.array(rec["it"]) >= SqpSolver().max_iter)),
+        "load_1min": os.getloadavg()[0],
         "failures": int(f_def),
         "unconverged_checked_feasible": int(u_def),
         "default_steps": len(t_def),
@@ -406,12 +611,15 @@ def main() -> None:
                     help="tuned baseline with one closure per CBF row (slower)")  # fmt: skip
     ap.add_argument("--no-slsqp", action="store_true", help="skip the SLSQP baselines")
     ap.add_argument("--no-casadi", action="store_true", help="skip CasADi even when it is installed")
+    ap.add_argument("--drive-seeds", type=int, default=0,
+                    help="also: Case I keypoint drives of these many seeds against the bicycle 10 x 7 row")  # fmt: skip
     args = ap.parse_args()
     if args.quick:
         cases = [("single_integrator", 2, 7, "paper-2", 20), ("single_integrator", 2, 7, 1, 20),
-                 ("single_integrator", 10, 20, 1, 3), ("bicycle", 10, 7, 1, 3)]  # fmt: skip
+                 ("single_integrator", 10, 20, 1, 3), ("bicycle", 10, 7, 1, 3),
+                 ("bicycle_drive", 2, 7, 0, 0)]  # fmt: skip
     else:
-        cases = [("single_integrator", 2, 7, "paper-2", 100)]
+        cases = [("single_integrator", 2, 7, "paper-2", 100), ("bicycle_drive", 2, 7, 0, 0)]
         for model in ("single_integrator", "bicycle"):
             for n_p in (2, 10, 50):
                 for n_h in (7, 20):
@@ -426,10 +634,27 @@ def main() -> None:
     rows = []
     print("| model | case | N_p x N_h | default median / p95 / max (ms) | compiled floor median (ms) "
           "| default run alone median / p95 (ms), x floor | SQP its "
-          "median / max | CasADi SQP median / p95 (ms) | IPOPT median / p95 (ms) | default / CasADi SQP: median, p95 | "
+          "median / p95 / max, at limit | CasADi SQP median / p95 (ms) | IPOPT median / p95 (ms) "
+          "| default / CasADi SQP: median, p95 | "
           "max input diff (SQP / IPOPT) | failures (default / CasADi SQP / IPOPT) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for model, n_p, n_h, seed, bsteps in cases:
+        if model == "bicycle_drive":  # the drive's controller at the states of a Case I drive
+            r = run_drive_case(int(seed), use_casadi)
+            rows.append(r)
+            sqp = r["casadi_sqp_median_ms"]
+            ratio = (
+                "n/a"
+                if not sqp
+                else f"{r['default_median_ms'] / sqp:.2f}, {r['default_p95_ms'] / r['casadi_sqp_p95_ms']:.2f}"
+            )
+            print(f"| {model} | {r['case']} | {r['n_p']} x {n_h} "
+                  f"| {r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f} / {r['default_max_ms']:.3f} | n/a | n/a "
+                  f"| {r['iterations_median']:.0f} / {r['iterations_p95']:.0f} / {r['iterations_max']}, "
+                  f"{100 * r['at_iteration_limit_share']:.1f} % | {_fmt(sqp)} / {_fmt(r['casadi_sqp_p95_ms'])} | n/a "
+                  f"| {ratio} | {_fmt(r['casadi_sqp_max_input_diff'], '.1e')} / n/a "
+                  f"| {r['failures']} / {_fmt(r['casadi_sqp_failures'], 'd')} / n/a |", flush=True)  # fmt: skip
+            continue
         r = run_case(model, n_p, n_h, seed, args.steps, 0 if args.no_slsqp else bsteps, args.per_row_baseline,
                      use_casadi)  # fmt: skip
         rows.append(r)
@@ -441,17 +666,28 @@ def main() -> None:
         print(f"| {model} | {case} | {r['n_p']} x {n_h} "
               f"| {r['default_median_ms']:.3f} / {r['default_p95_ms']:.3f} / {r['default_max_ms']:.3f} "
               f"| {r['floor_median_ms']:.3f} | {r['alone_median_ms']:.3f} / {r['alone_p95_ms']:.3f}, "
-              f"{r['alone_over_floor']:.1f}x | {r['iterations_median']:.0f} / {r['iterations_max']} "
+              f"{r['alone_over_floor']:.1f}x | {r['iterations_median']:.0f} / {r['iterations_p95']:.0f} / "
+              f"{r['iterations_max']}, {100 * r['at_iteration_limit_share']:.1f} % "
               f"| {_fmt(sqp)} / {_fmt(r['casadi_sqp_p95_ms'])} | {_fmt(ipo, '.2f')} / {_fmt(r['ipopt_p95_ms'], '.2f')} "
               f"| {ratio} | {_fmt(r['casadi_sqp_max_input_diff'], '.1e')} / {_fmt(r['ipopt_max_input_diff'], '.1e')} "
               f"| {r['failures']} / {_fmt(r['casadi_sqp_failures'], 'd')} / {_fmt(r['ipopt_failures'], 'd')} |",
               flush=True)  # fmt: skip
+    print(f"\nload average (1 min) at the end: {os.getloadavg()[0]:.2f}")
     if use_casadi:
         print("\nRatios below 1 favour trustnav (targets: median <= 0.33, p95 <= 0.5). CasADi times are the wall time "
               "of one solver call from Python; the default's are whole controller steps. Input differences are "
               "taken where both solvers converged (the default OPTIMAL), over the whole planned horizon.")  # fmt: skip
     if not args.no_slsqp:
-        _slsqp_table(rows)
+        _slsqp_table([r for r in rows if r["model"] != "bicycle_drive"])
+    if args.drive_seeds > 0:
+        d = drive_solve_times(args.drive_seeds, use_casadi)
+        print(f"\ntrustnav drive case-1 --sensing keypoints, seeds 0-{d['drive_seeds'] - 1} "
+              f"({d['drive_steps']} steps): "
+              f"solve median {d['drive_median_ms']:.3f} ms, p95 {d['drive_p95_ms']:.3f} ms; the bicycle 10 x 7 row "
+              f"in the same run {d['bench_median_ms']:.3f} / {d['bench_p95_ms']:.3f} ms (alone "
+              f"{d['bench_alone_median_ms']:.3f} / {d['bench_alone_p95_ms']:.3f}): {d['median_ratio']:.2f}x median "
+              f"(bar <= 2), {d['p95_ratio']:.2f}x p95 (bar <= 4); load {d['load_1min']:.2f}")  # fmt: skip
+        rows.append({"model": "drive_case1_keypoints", **d})
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)

@@ -16,7 +16,7 @@ from trustnav.control.barrier import (
 )
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, TrackingWeights, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockConfig
-from trustnav.control.models import Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
+from trustnav.control.models import CompiledDynamics, Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
 from trustnav.control.mpc import MpcController, MpcSolution
 from trustnav.control.problem import (
     FUSED_KERNELS,
@@ -45,6 +45,7 @@ __all__ = [
     "Barrier",
     "BicycleProblem",
     "BoundedProportionalReference",
+    "CompiledDynamics",
     "Cost",
     "DeadlockConfig",
     "Dynamics",

@@ -22,6 +22,9 @@ from numba import njit
 from trustnav.control.barrier import h_quad
 
 INF = 1e20  # DAQP treats |bound| >= 1e20 as infinite
+# the exact-Hessian SQP's QPs after this iteration add the rows' curvature
+CURVATURE_START = 6
+CURVATURE_FLOOR = 1e-2  # eigenvalue floor of the exact-Hessian SQP's (I + dt^2 C), see single_integrator_curvature
 
 
 @njit(cache=True, fastmath=False)
@@ -364,3 +367,254 @@ def shift_plan(plan, out):
         src = k + 1 if k + 1 < n else n - 1
         for d in range(plan.shape[1]):
             out[k, d] = plan[src, d]
+
+
+@njit(cache=True)
+def single_integrator_curvature(lam, nsimple, omg, stride, n_p, dt, floor, h_mat):
+    """The Hessian of the SQP's QP with the pedestrian rows' curvature (an exact-Hessian SQP) for
+    the single integrator with cost sum ||u - u_bar||^2: H = 2 (I + dt^2 C) (x) I_2, where C is the
+    Hessian of - sum_r mu_r g_r (rows g_r of `cbf_imp` with `h_quad`, multipliers mu_r = -lam[nsimple
+    + r] >= 0 of the last hard QP, DAQP's sign for an active lower bound) over the N_h planar steps.
+    Row (k, j) has Hessian 2 dt^2 (M_{k+1} - (1 - gamma_j) M_k), M_t[a, b] = 1 where a, b < t, so
+    C[a, b] depends on max(a, b) alone. Where I + dt^2 C - floor I is not positive definite (a
+    Cholesky test), its eigenvalues are clipped at ``floor`` (the convexification of CasADi's
+    ``eigen-clip``); ``floor`` <= 0: the cost's Hessian alone (a Gauss-Newton SQP). Returns the
+    smallest eigenvalue where it clipped, else 1.0."""
+    n_h = h_mat.shape[0] // 2
+    if floor <= 0.0:
+        flat_hessian(h_mat)
+        return 1.0
+    w = np.zeros(n_h + 1)  # w[t]: the weight of M_t
+    any_active = False
+    for k in range(n_h):
+        for j in range(n_p):
+            mu = -lam[nsimple + k * stride + j]
+            if mu > 0.0:
+                any_active = True
+                w[k + 1] -= mu
+                w[k] += mu * omg[j]
+    red = np.eye(n_h)
+    low = 1.0
+    if any_active:
+        tail = 0.0
+        for s in range(n_h - 1, -1, -1):  # tail = sum over t > s of w[t]
+            tail += w[s + 1]
+            c = dt * dt * tail
+            for a in range(s + 1):  # entries with max(a, b) = s
+                red[a, s] += c
+                if a != s:
+                    red[s, a] += c
+        work = np.empty((n_h, n_h))
+        if not _positive_definite(red, -floor, work):  # clip the eigenvalues below floor (rarely needed)
+            vals, vecs = np.linalg.eigh(red)
+            low = vals[0]
+            for i in range(n_h):
+                if vals[i] < floor:
+                    vals[i] = floor
+            red = (vecs * vals) @ vecs.T
+    for a in range(n_h):
+        for b in range(n_h):
+            v = 2.0 * red[a, b]
+            h_mat[2 * a, 2 * b] = v
+            h_mat[2 * a + 1, 2 * b + 1] = v
+            h_mat[2 * a, 2 * b + 1] = 0.0
+            h_mat[2 * a + 1, 2 * b] = 0.0
+    return low
+
+
+@njit(cache=True)
+def flat_hessian(h_mat):
+    """H = 2 I: the single integrator's cost Hessian alone (the first QP of a solve)."""
+    n = h_mat.shape[0]
+    for a in range(n):
+        for b in range(n):
+            h_mat[a, b] = 0.0
+        h_mat[a, a] = 2.0
+
+
+@njit(cache=True)
+def _positive_definite(mat, shift, work):
+    """True when mat + shift I is positive definite (an in-place Cholesky in ``work``)."""
+    n = mat.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = mat[i, j] + (shift if i == j else 0.0)
+            for k in range(j):
+                acc -= work[i, k] * work[j, k]
+            if i == j:
+                if acc <= 0.0:
+                    return False
+                work[i, i] = math.sqrt(acc)
+            else:
+                work[i, j] = acc / work[j, j]
+    return True
+
+
+@njit(cache=True)
+def _road_value(road, i, x, y, yaw):
+    """Road-edge function i of :class:`~trustnav.control.barrier.RoadEdgeBarrier` at a world
+    position and heading; ``road`` = (start x, start y, normal x, normal y, room left, room right,
+    front, 1 - gamma). Returns (h, dh/dx, dh/dy, dh/dyaw)."""
+    nx_, ny_ = road[2], road[3]
+    d = (x - road[0]) * nx_ + (y - road[1]) * ny_
+    sign = -1.0 if i % 2 == 0 else 1.0  # left edge: room - d, right edge: d + room
+    room = road[4] if i % 2 == 0 else road[5]
+    if i < 2:
+        return room + sign * d, sign * nx_, sign * ny_, 0.0
+    front = road[6]
+    c, s = math.cos(yaw), math.sin(yaw)
+    df = d + front * (c * nx_ + s * ny_)
+    turn = front * (-s * nx_ + c * ny_)
+    return room + sign * df, sign * nx_, sign * ny_, sign * turn
+
+
+@njit(cache=True)
+def road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, nsimple):
+    """The rows of `cbf_discrete` of a road's edges (``n_road`` functions: 2, or 4 with the car's
+    front) at the states ``xs`` (ego-centred, about ``ox, oy``) and their sensitivities: row
+    k * stride + n_p + i is h_i(x(k+1)) - (1 - gamma) h_i(x(k)), as
+    :meth:`MpcProblem._fill_user_rows` builds it for the barrier through its protocol."""
+    n_h = xs.shape[0] - 1
+    n = sens.shape[2]
+    omg = road[7]
+    nxs = xs.shape[1]
+    for k in range(n_h):
+        for i in range(n_road):
+            yaw0 = xs[k, 2] if nxs > 2 else 0.0
+            yaw1 = xs[k + 1, 2] if nxs > 2 else 0.0
+            h0, gx0, gy0, gw0 = _road_value(road, i, xs[k, 0] + ox, xs[k, 1] + oy, yaw0)
+            h1, gx1, gy1, gw1 = _road_value(road, i, xs[k + 1, 0] + ox, xs[k + 1, 1] + oy, yaw1)
+            r = k * stride + n_p + i
+            val = h1 - omg * h0
+            g[r] = val
+            for c in range(n):
+                j1 = gx1 * sens[k + 1, 0, c] + gy1 * sens[k + 1, 1, c]
+                j0 = gx0 * sens[k, 0, c] + gy0 * sens[k, 1, c]
+                if i >= 2:
+                    j1 += gw1 * sens[k + 1, 2, c]
+                    j0 += gw0 * sens[k, 2, c]
+                a_mat[r, c] = j1 - omg * j0
+            bl[nsimple + r] = -val
+            bu[nsimple + r] = INF
+
+
+ARMIJO = 1e-4  # sufficient decrease of the SQP's line search on the L1 merit (a share of its slope)
+
+
+@njit(cache=True)
+def merit_violation(bl, bu, nsimple, first):
+    """The L1 merit's violation at the QP's point (dU = 0): sum over the rows from ``first`` on of
+    how far each misses its bounds, max(0, bl) + max(0, -bu) (CBF rows: max(0, -row); the model's
+    state rows, e.g. the bicycle's speed bounds, too, so that a step the QP takes to restore them
+    is not judged by the cost alone)."""
+    total = 0.0
+    for r in range(nsimple + first, bl.shape[0]):
+        if bl[r] > 0.0:
+            total += bl[r]
+        if bu[r] < 0.0:
+            total -= bu[r]
+    return total
+
+
+@njit(cache=True)
+def merit_slope(f, step, n, mu, violation):
+    """Directional derivative bound of the L1 merit cost + mu * violation along a QP step that
+    meets the linearised rows: f . step - mu * violation, and never above 0."""
+    s = 0.0
+    for i in range(n):
+        s += f[i] * step[i]
+    s -= mu * violation
+    return min(s, 0.0)
+
+
+@njit(cache=True)
+def bicycle_advance(px, py, yaw, v, turn, acc, h, n, out):
+    """``n`` Euler sub-steps of ``h`` of the kinematic bicycle (:meth:`KinematicBicycle.step`) with
+    the input held (``turn`` = tan(steer) / wheelbase); the state into ``out``."""
+    for _ in range(n):
+        px, py, yaw, v = px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h, yaw + v * turn * h, v + acc * h
+    out[0], out[1], out[2], out[3] = px, py, yaw, v
+
+
+@njit
+def user_sensitivities(step_fn, jacobian_fn, x0, u, dt, xs, sens):
+    """States x_0..x_N and their sensitivities dx_k/dU (S_{k+1} = A_k S_k + B_k E_k) of a model
+    whose one step and Jacobians are the user's compiled functions ``step_fn(x, u, dt, out)`` and
+    ``jacobian_fn(x, u, dt, a, b)`` (:class:`~trustnav.control.models.CompiledDynamics`); one
+    compiled loop instead of a Python call per step. Not cached: numba compiles it once per pair
+    of user functions in a process."""
+    n_h, nu = u.shape
+    nx = x0.shape[0]
+    n = n_h * nu
+    a = np.empty((nx, nx))
+    b = np.empty((nx, nu))
+    for i in range(nx):
+        xs[0, i] = x0[i]
+        for c in range(n):
+            sens[0, i, c] = 0.0
+    for k in range(n_h):
+        jacobian_fn(xs[k], u[k], dt, a, b)
+        cols = (k + 1) * nu  # inputs after u_k do not move x(k+1)
+        for i in range(nx):
+            for c in range(cols):
+                acc = 0.0
+                for j in range(nx):
+                    acc += a[i, j] * sens[k, j, c]
+                sens[k + 1, i, c] = acc
+            for c in range(cols, n):
+                sens[k + 1, i, c] = 0.0
+            for d in range(nu):
+                sens[k + 1, i, k * nu + d] += b[i, d]
+        step_fn(xs[k], u[k], dt, xs[k + 1])
+
+
+@njit
+def user_rollout(step_fn, x0, u, dt, xs):
+    """States x_0..x_N of a :class:`~trustnav.control.models.CompiledDynamics` model."""
+    for i in range(x0.shape[0]):
+        xs[0, i] = x0[i]
+    for k in range(u.shape[0]):
+        step_fn(xs[k], u[k], dt, xs[k + 1])
+
+
+@njit(cache=True)
+def position_tracking(stage, xs, sens, u, u_prev, wp, wu, wr, hessian, gradient):
+    """:class:`~trustnav.control.costs.PositionTrackingCost`'s Gauss-Newton model in one compiled
+    pass: cost wp sum ||p(k+1) - x_bar(k+1)||^2 + wu sum ||u(k)||^2 + wr sum ||u(k) - u(k-1)||^2,
+    H = 2 J' W J + 1e-9 I and gradient 2 J' W r in place (positions' Jacobian from ``sens``)."""
+    n_h, nu = u.shape
+    n = n_h * nu
+    cost = 0.0
+    for i in range(n):
+        gradient[i] = 0.0
+        for j in range(n):
+            hessian[i, j] = 0.0
+    for k in range(n_h):
+        for d in range(2):
+            r = xs[k + 1, d] - stage[k, d]
+            cost += wp * r * r
+            for i in range(n):
+                s_i = sens[k + 1, d, i]
+                if s_i == 0.0:
+                    continue
+                gradient[i] += 2.0 * wp * s_i * r
+                for j in range(n):
+                    hessian[i, j] += 2.0 * wp * s_i * sens[k + 1, d, j]
+        for d in range(nu):
+            i = k * nu + d
+            cost += wu * u[k, d] * u[k, d]
+            gradient[i] += 2.0 * wu * u[k, d]
+            hessian[i, i] += 2.0 * wu
+            prev = u_prev[d] if k == 0 else u[k - 1, d]
+            rate = u[k, d] - prev
+            cost += wr * rate * rate
+            gradient[i] += 2.0 * wr * rate  # d rate_k / d u_k = 1, d rate_{k+1} / d u_k = -1
+            hessian[i, i] += 2.0 * wr
+            if k > 0:
+                gradient[i - nu] -= 2.0 * wr * rate
+                hessian[i - nu, i - nu] += 2.0 * wr
+                hessian[i, i - nu] -= 2.0 * wr
+                hessian[i - nu, i] -= 2.0 * wr
+    for i in range(n):
+        hessian[i, i] += 1e-9
+    return cost

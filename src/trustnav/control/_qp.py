@@ -3,9 +3,11 @@
 The SQP of :class:`~trustnav.control.solvers.SqpSolver` spends most of a control step outside the
 QP when each iteration goes through Python (kernel dispatch, DAQP's Python wrapper, the step).
 For the fused single-integrator and bicycle problems, :func:`single_integrator_full_steps` (full
-steps) and :func:`bicycle_steps` (L1-merit line search) run them in one compiled call: build the
-QP (`cbf_imp` linearised, the fused kernels of :mod:`trustnav.control._kernels`), solve it with
-DAQP's C API, step, repeat. The three structures of that API (problem, settings, result) are
+steps, then the line search; the rows' curvature in the Hessian from the seventh QP) and
+:func:`bicycle_steps` (Armijo line search on the L1 merit; a road's edges too) run them in one
+compiled call: build the QP (`cbf_imp` linearised, the fused kernels of
+:mod:`trustnav.control._kernels`), solve it with DAQP's C API, step, repeat. The three
+structures of that API (problem, settings, result) are
 filled here with the layout of daqp 0.11's ``types.h`` / ``api.h``; the layout is checked at
 import against DAQP's own defaults, and a mismatch (another DAQP build) leaves :data:`AVAILABLE`
 False, so the solver keeps its Python path.
@@ -22,14 +24,21 @@ from numba import njit, types
 from numpy.typing import NDArray
 
 from trustnav.control._kernels import (
+    ARMIJO,
+    CURVATURE_START,
     INF,
     bicycle_qp,
     bicycle_rollout,
     clip_plan,
+    flat_hessian,
     lane_march,
+    merit_slope,
+    merit_violation,
     one_minus_gamma,
+    road_fill,
     row_violations,
     shift_plan,
+    single_integrator_curvature,
     single_integrator_qp,
     single_integrator_rollout,
     velocity_stage,
@@ -124,13 +133,18 @@ class QpStructs:
 def single_integrator_full_steps(
     max_it, tol, u, seen, x0, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat,
     bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, trial,
+    h_mat, n_p, floor,
 ):  # fmt: skip
     """SQP steps of the single-integrator problem from ``u`` (changed in place), as
     :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them: the QP at u, solved
     by DAQP; full steps u <- u + dU for the first ``full_its`` iterations, then the backtracking
     line search of :func:`bicycle_steps` on the L1 merit (weight ``mu``; ``trial`` its buffer);
     stop when the step taken, max |alpha dU|, is below tol. The iterate of each QP is copied to
-    ``seen``.
+    ``seen``. The first ``CURVATURE_START`` QPs' Hessian ``h_mat`` is the cost's (2 I); every later one adds the
+    pedestrian rows' curvature weighted by the last QP's multipliers
+    (:func:`~trustnav.control._kernels.single_integrator_curvature`, eigenvalues clipped at
+    ``floor``): an exact-Hessian SQP, which converges in a few iterations where the Gauss-Newton
+    Hessian alone converged linearly (many active rows, fewer than the inputs).
 
     Returns (iterations, state, cost at the last built point, DAQP exit flag): state 1 converged
     (the QP buffers hold the data at the final u, the cost is its cost), 0 ``max_it`` iterations
@@ -138,9 +152,11 @@ def single_integrator_full_steps(
     DAQP starts from the working set of the last QP it solved (its multipliers ``lam``, kept from
     one control step to the next), as a ``daqp.Model`` does."""
     n_h = u.shape[0]
+    n = 2 * n_h
     cost = 0.0
     flag = 0
     fresh = False
+    flat_hessian(h_mat)
     for it in range(1, max_it + 1):
         if not fresh:
             cost = single_integrator_qp(
@@ -155,6 +171,8 @@ def single_integrator_full_steps(
         for k in range(n_h):
             seen[it - 1, k, 0] = u[k, 0]
             seen[it - 1, k, 1] = u[k, 1]
+        if it >= CURVATURE_START:  # the next QP's Hessian: with the rows' curvature once it is slow
+            single_integrator_curvature(lam, n, omg, stride, n_p, dt, floor, h_mat)
         step = 0.0
         if it <= full_its:
             for k in range(n_h):
@@ -169,17 +187,26 @@ def single_integrator_full_steps(
                 )
                 return it, 1, cost, flag
             continue
-        merit0 = cost + mu * _violation(g)
+        viol0 = merit_violation(bl, bu, n, 0)
+        merit0 = cost + mu * viol0
+        slope = merit_slope(f, xsol, n, mu, viol0)
         alpha = 1.0
         c1 = cost
+        accepted = False
         for _ in range(8):
             _trial_point(u, xsol, alpha, ulo, uhi, trial)
             c1 = single_integrator_qp(
                 x0, trial, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
             )
-            if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
+            if c1 + mu * merit_violation(bl, bu, n, 0) <= merit0 + ARMIJO * alpha * slope + 1e-12 * (1.0 + abs(merit0)):
+                accepted = True
                 break
             alpha *= 0.5
+        if not accepted:  # no decrease of the merit along the QP's step: no progress is possible here
+            cost = single_integrator_qp(
+                x0, u, ubar, peds, vels, omg, r2, dt, timing, stride, ulo, uhi, pos, sens, f, a_mat, bl, bu, g
+            )
+            return it, 1, cost, flag
         step = _accept(u, trial, xsol, step)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
         if alpha * step < tol:
@@ -192,6 +219,7 @@ def single_integrator_step(
     x_in, peds_in, vels, trust, prev, max_it, x0, origin, peds, omg, ref, shifted, lam0, gamma_ini, delta, lam_g,
     goal_x, goal_y, gain, v_max, dt, rollout, max_coordinate, tol, seen, r2, timing, n_decided, ulo, uhi, pos, sens,
     f, a_mat, bl, bu, g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu,
+    h_mat, floor,
 ):  # fmt: skip
     """A whole control step of the single-integrator problem with a velocity-tracking cost, in one
     compiled call: the step's data (:func:`velocity_stage`, from world-frame ``x_in``,
@@ -228,7 +256,8 @@ def single_integrator_step(
     clip_plan(shifted, ulo, uhi, u)
     it, state, cost, _ = single_integrator_full_steps(
         max_it, tol, u, seen, x0, ref, peds, vels, omg, r2, dt, timing, n_p, ulo, uhi, pos, sens, f, a_mat, bl, bu,
-        g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, shifted,
+        g, sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, full_its, mu, shifted, h_mat, n_p,
+        floor,
     )  # fmt: skip
     first = worst = 0.0
     if state > 0:
@@ -296,7 +325,7 @@ def bicycle_step(
     it, state, cost, _ = bicycle_steps(
         max_it, tol, mu, u, seen, trial, x0, u_prev, pts, yaw, speed, weights, wheelbase, vmin, vmax, peds, vels,
         omg, r2, dt, n_sub, timing, n_p, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, sense,
-        xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+        xsol, lam, result_words, result_addr, problem_addr, settings_addr, 0.0, 0.0, np.zeros(8), 0,
     )  # fmt: skip
     first = worst = limit = decided = 0.0
     if state > 0:
@@ -342,27 +371,21 @@ def _accept(u, trial, xsol, step):
 
 
 @njit(cache=True)
-def _violation(g):
-    total = 0.0
-    for i in range(g.shape[0]):
-        if g[i] < 0.0:
-            total -= g[i]
-    return total
-
-
-@njit(cache=True)
 def bicycle_steps(
     max_it, tol, mu, u, seen, trial, x0, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds,
     vels, omg, r2, dt, n_sub, timing, stride, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
-    sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr,
+    sense, xsol, lam, result_words, result_addr, problem_addr, settings_addr, ox, oy, road, n_road,
 ):  # fmt: skip
     """SQP iterations of the kinematic-bicycle problem from ``u`` (changed in place), as
     :meth:`SqpSolver._iterate_qp` and :meth:`SqpSolver._take_step` take them for a nonlinear
     problem: the QP at u (DAQP, warm-started as in :func:`single_integrator_full_steps`), then a
     backtracking line search (at most 8 halvings) on the L1 merit cost + mu * sum max(0, -row);
-    stop when alpha max |dU| < tol. Returns as :func:`single_integrator_full_steps`."""
+    stop when alpha max |dU| < tol. Returns as :func:`single_integrator_full_steps`. ``n_road`` > 0:
+    the rows of a road's edges (:func:`~trustnav.control._kernels.road_fill`, ``road`` its data, the
+    ego-centred states about ``ox, oy``) after the pedestrians' at every step of the horizon."""
     n_h = u.shape[0]
     n = 2 * n_h
+    n_p = peds.shape[0]
     cost = 0.0
     flag = 0
     fresh = False
@@ -372,6 +395,8 @@ def bicycle_steps(
                 x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
                 n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
             )  # fmt: skip
+            if n_road:
+                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
             for r in range(n_decided):
                 bl[n + r] = -INF
         _warm_start(sense, lam)
@@ -382,20 +407,37 @@ def bicycle_steps(
         for k in range(n_h):
             seen[it - 1, k, 0] = u[k, 0]
             seen[it - 1, k, 1] = u[k, 1]
-        merit0 = cost + mu * _violation(g)
+        viol0 = merit_violation(bl, bu, n, n_decided)
+        merit0 = cost + mu * viol0
+        slope = merit_slope(f, xsol, n, mu, viol0)
         alpha = 1.0
         c1 = cost
+        accepted = False
         for _ in range(8):
             _trial_point(u, xsol, alpha, ulo, uhi, trial)
             c1 = bicycle_qp(
                 x0, trial, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
                 n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
             )  # fmt: skip
+            if n_road:
+                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
             for r in range(n_decided):
                 bl[n + r] = -INF
-            if c1 + mu * _violation(g) <= merit0 + 1e-12 * (1.0 + abs(merit0)):
+            trial_merit = c1 + mu * merit_violation(bl, bu, n, n_decided)
+            if trial_merit <= merit0 + ARMIJO * alpha * slope + 1e-12 * (1.0 + abs(merit0)):
+                accepted = True
                 break
             alpha *= 0.5
+        if not accepted:  # no decrease of the merit along the QP's step: no progress is possible here
+            cost = bicycle_qp(
+                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
+                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+            )  # fmt: skip
+            if n_road:
+                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
+            for r in range(n_decided):
+                bl[n + r] = -INF
+            return it, 1, cost, flag
         step = _accept(u, trial, xsol, 0.0)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
         if alpha * step < tol:

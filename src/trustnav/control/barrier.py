@@ -167,6 +167,39 @@ class PedestrianBarrier:
         return h, grad
 
 
+_QUANTILES: dict[float, float] = {}
+
+
+def _quantile(confidence: float) -> float:
+    """The one-sided normal quantile z of ``confidence`` (remembered: a few per process)."""
+    z = _QUANTILES.get(confidence)
+    if z is None:
+        z = _QUANTILES[confidence] = NormalDist().inv_cdf(confidence)
+    return z
+
+
+@njit(cache=True)
+def _margins4(e, p, c, t, z, out):
+    """:func:`uncertainty_margins` for (N, 4, 4) covariances: z sqrt(n' S n), S the position
+    covariance predicted ``t`` ahead, n the unit line of approach (the largest eigenvalue of S at
+    the ego's own position)."""
+    for j in range(p.shape[0]):
+        s00 = c[j, 0, 0] + t * (c[j, 0, 2] + c[j, 2, 0]) + t * t * c[j, 2, 2]
+        s11 = c[j, 1, 1] + t * (c[j, 1, 3] + c[j, 3, 1]) + t * t * c[j, 3, 3]
+        s01 = c[j, 0, 1] + t * (c[j, 0, 3] + c[j, 2, 1]) + t * t * c[j, 2, 3]
+        s10 = c[j, 1, 0] + t * (c[j, 1, 2] + c[j, 3, 0]) + t * t * c[j, 3, 2]
+        off = 0.5 * (s01 + s10)
+        dx, dy = e[0] - p[j, 0], e[1] - p[j, 1]
+        dist = np.sqrt(dx * dx + dy * dy)
+        if dist > 1e-9:
+            nx, ny = dx / dist, dy / dist
+            var = nx * nx * s00 + 2.0 * nx * ny * off + ny * ny * s11
+        else:  # the larger eigenvalue of the symmetric 2 x 2
+            mid = 0.5 * (s00 + s11)
+            var = mid + np.sqrt(0.25 * (s00 - s11) ** 2 + off * off)
+        out[j] = z * np.sqrt(max(var, 0.0))
+
+
 def uncertainty_margins(
     ego: ArrayLike,
     positions: ArrayLike,
@@ -198,6 +231,11 @@ def uncertainty_margins(
     n_p = p.shape[0]
     if c.shape not in ((n_p, 4, 4), (n_p, 2, 2)) or not np.all(np.isfinite(c)):
         raise ValueError(f"covariances must be finite, shape ({n_p}, 4, 4) or ({n_p}, 2, 2), got shape {c.shape}")
+    if c.shape[1] == 4:  # the common case (a tracker's states): one compiled pass (the same arithmetic)
+        out = np.empty(n_p)
+        _margins4(np.ascontiguousarray(e), np.ascontiguousarray(p), np.ascontiguousarray(c), float(lead_time),
+                  _quantile(confidence), out)  # fmt: skip
+        return out
     s = c[:, :2, :2].copy()
     if c.shape[1] == 4:
         t = float(lead_time)

@@ -16,6 +16,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.control import _kernels as kern
 from trustnav.control.models import Dynamics
 from trustnav.control.reference import BoundedProportionalReference
 
@@ -283,6 +284,14 @@ class PositionTrackingCost:
     def evaluate(self, stage, xs, sens, u, u_prev, hessian, gradient) -> float:
         n_h, nu = u.shape
         n = n_h * nu
+        if hessian.flags.c_contiguous and gradient.flags.c_contiguous:  # one compiled pass (the same model)
+            f64 = np.float64
+            return float(kern.position_tracking(
+                np.ascontiguousarray(stage, dtype=f64), np.ascontiguousarray(xs, dtype=f64),
+                np.ascontiguousarray(sens, dtype=f64), np.ascontiguousarray(u, dtype=f64),
+                np.ascontiguousarray(u_prev, dtype=f64), float(self.position_weight), float(self.input_weight),
+                float(self.rate_weight), hessian, gradient,
+            ))  # fmt: skip
         r, w = self._residuals(stage, xs, u, u_prev)
         jac = np.zeros((r.size, n))
         jac[: 2 * n_h] = sens[1:, :2].reshape(2 * n_h, n)

@@ -11,18 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
-from trustnav.control.barrier import h_quad
 
-if TYPE_CHECKING:
-    from trustnav.control.problem import MpcProblem
-
-__all__ = ["Dynamics", "DynamicsModel", "KinematicBicycle", "SingleIntegrator", "StateRow"]
+__all__ = ["CompiledDynamics", "Dynamics", "DynamicsModel", "KinematicBicycle", "SingleIntegrator", "StateRow"]
 
 
 @runtime_checkable
@@ -121,19 +117,6 @@ class DynamicsModel:
         """Bounds on state components over the horizon (e.g. speed), as linearised QP rows."""
         return []
 
-    def candidate_starts(self, problem: MpcProblem) -> list[NDArray[np.float64]]:
-        """Starting plans for the feasibility recovery (each (N_h, nu)): braking, the cost's
-        initial guess, and constant inputs at the corners of the input box."""
-        lo, hi = self.input_bounds()
-        n_h = problem.n_h
-        corners = np.array(np.meshgrid(*np.stack([lo, hi], axis=1))).reshape(self.nu, -1).T
-        return [problem.braking_plan(), problem.initial_guess()] + [np.tile(c, (n_h, 1)) for c in corners]
-
-    def first_step_infeasible(self, problem: MpcProblem, tol: float) -> bool:
-        """True when the k = 0 rows admit no first input (a certificate that no plan is
-        hard-feasible); False when unknown (the default)."""
-        return False
-
     def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
         """States x_0..x_N for inputs u_0..u_{N-1} (N, nu)."""
         u = np.asarray(inputs, dtype=float).reshape(-1, self.nu)
@@ -148,6 +131,51 @@ class DynamicsModel:
         if arr.shape != (self.nx,) or not math.isfinite(sum(arr.tolist())):
             raise ValueError(f"{self.name} state must be {self.nx} finite numbers, got {x!r}")
         return arr
+
+
+class CompiledDynamics(DynamicsModel):
+    """A model of the user's at compiled speed: its one step and Jacobians are numba functions
+    (``@numba.njit``) of plain arrays, given as the class attributes
+
+    * ``step_kernel(x, u, dt, out)``: write x(k+1) of one step of ``dt`` from x = x(k), u into ``out``;
+    * ``jacobian_kernel(x, u, dt, a, b)``: write A = df/dx (nx, nx) and B = df/du (nx, nu) of that step.
+
+    (wrap each in ``staticmethod``). The rollout and the sensitivities dx(k)/dU the SQP linearises
+    with run in one compiled loop that calls them (:func:`~trustnav.control._kernels.user_sensitivities`)
+    instead of a Python call per step and sub-step; ``step`` and ``jacobians`` call them too. Everything
+    else is :class:`DynamicsModel`'s (bounds, fallbacks, hooks). See ``examples/custom_dynamics.py``."""
+
+    step_kernel: Any = None
+    jacobian_kernel: Any = None
+
+    def step(self, x: ArrayLike, u: ArrayLike, dt: float) -> NDArray[np.float64]:
+        out = np.empty(self.nx)
+        self.step_kernel(_f64(x), _f64(u), float(dt), out)
+        return out
+
+    def jacobians(self, x: ArrayLike, u: ArrayLike, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        a, b = np.empty((self.nx, self.nx)), np.empty((self.nx, self.nu))
+        self.jacobian_kernel(_f64(x), _f64(u), float(dt), a, b)
+        return a, b
+
+    def sensitivities(
+        self, x0: ArrayLike, inputs: ArrayLike, dt: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        u = _f64(inputs).reshape(-1, self.nu)
+        xs = np.empty((u.shape[0] + 1, self.nx))
+        sens = np.empty((u.shape[0] + 1, self.nx, u.size))
+        kern.user_sensitivities(self.step_kernel, self.jacobian_kernel, _f64(x0), u, float(dt), xs, sens)
+        return xs, sens
+
+    def rollout(self, x0: ArrayLike, inputs: ArrayLike, dt: float) -> NDArray[np.float64]:
+        u = _f64(inputs).reshape(-1, self.nu)
+        xs = np.empty((u.shape[0] + 1, self.nx))
+        kern.user_rollout(self.step_kernel, _f64(x0), u, float(dt), xs)
+        return xs
+
+
+def _f64(a: ArrayLike) -> NDArray[np.float64]:
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -197,91 +225,6 @@ class SingleIntegrator(DynamicsModel):
             sens[k + 1 :, 1, 2 * k + 1] = dt
         return self.rollout(x0, u, dt), sens
 
-    def candidate_starts(self, problem: MpcProblem) -> list[NDArray[np.float64]]:
-        """Constant-velocity plans: stop, the cost's initial guess, and for each of the three most
-        binding obstacles backing away, passing on either side, and both diagonals, at the
-        reference speed, half of it, a quarter of the input bound and the bound, and a dash at the
-        bound that stops after a third of the horizon (the CBF rows are non-convex: an obstacle can
-        be passed on either side, or backed away from)."""
-        p = problem
-        guess = p.initial_guess()
-        starts = [np.zeros((p.n_h, 2)), guess]
-        ref = float(np.hypot(*guess[0]))
-        top = float(p.uhi.min())
-        speeds = [s for s in (ref, 0.5 * ref) if s > 1e-6] + [0.25 * top, top]
-        dash = np.zeros((p.n_h, 1))
-        dash[: max(1, p.n_h // 3)] = 1.0  # full speed for the first third of the horizon, then stop
-        for j in p.binding_obstacles(3):
-            away = p.escape_direction(j)
-            norm = float(np.hypot(*away))
-            e = away / norm if norm > 1e-9 else np.array([1.0, 0.0])  # on top of the ego: any way out
-            t = np.array([-e[1], e[0]])
-            for d in (e, t, -t, (e + t) / np.sqrt(2), (e - t) / np.sqrt(2)):
-                for s in speeds:
-                    starts.append(np.clip(np.tile(s * d, (p.n_h, 1)), p.ulo, p.uhi))
-                starts.append(np.clip(dash * (top * d), p.ulo, p.uhi))
-        return starts
-
-    def first_step_infeasible(self, problem: MpcProblem, tol: float, max_disks: int = 32) -> bool:
-        """True when no first input u_0 meets every pedestrian's k = 0 row to within ``tol``: then
-        no plan is hard-feasible (a certificate, so a solver can skip searching for one; other
-        barriers only add rows).
-
-        The k = 0 rows depend on u_0 alone: the next position p = u_0 dt must lie in the input box
-        times dt and outside the open disk |p - q_j(1)|^2 < R^2 + (1 - gamma_j) h_j(0) - tol of
-        each pedestrian. A generic linear function attains its minimum over that compact set (if
-        nonempty) at a vertex: a box corner, a crossing of a circle with a box edge, or of two
-        circles; so the set is empty exactly when no such point is in it. False (no certificate)
-        with more than ``max_disks`` disks reaching the box."""
-        p = problem
-        if p.n_p == 0:
-            return False
-        c = p.config
-        r2 = p.r2
-        lo, hi = c.dt * p.ulo, c.dt * p.uhi  # the box of p (ego at the origin)
-        q_next = p.peds + c.dt * p.vels if p.timing_code == 0 else p.peds
-        h0 = h_quad(p.peds[:, 0], p.peds[:, 1], r2)
-        rho = r2 + p.one_minus_gamma * h0 - tol  # row_j >= -tol  <=>  |p - q_j(1)|^2 >= rho_j
-        gap = np.maximum(lo - q_next, 0.0) + np.maximum(q_next - hi, 0.0)  # centre to the box
-        near = (rho > 0.0) & (np.einsum("ij,ij->i", gap, gap) < rho)
-        if not near.any():
-            return False
-        if int(near.sum()) > max_disks:
-            return False
-        cen, rad2 = q_next[near], rho[near]
-        pts = [np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])]
-        for axis in (0, 1):  # circles crossing the box edges x = lo/hi (axis 0), y = lo/hi (axis 1)
-            other = 1 - axis
-            for edge in (lo[axis], hi[axis]):
-                s2 = rad2 - (edge - cen[:, axis]) ** 2
-                ok = s2 >= 0.0
-                s = np.sqrt(s2[ok])
-                for sign in (-1.0, 1.0):
-                    e = np.empty((s.size, 2))
-                    e[:, axis] = edge
-                    e[:, other] = cen[ok, other] + sign * s
-                    pts.append(e)
-        i, j = np.triu_indices(cen.shape[0], k=1)  # circle-circle crossings
-        if i.size:
-            d = cen[j] - cen[i]
-            dd = np.einsum("ij,ij->i", d, d)
-            a = (rad2[i] - rad2[j] + dd) / (2.0 * np.sqrt(np.maximum(dd, 1e-300)))
-            h2 = rad2[i] - a * a
-            ok = (dd > 0.0) & (h2 >= 0.0)
-            dist = np.sqrt(dd[ok])[:, None]
-            u = d[ok] / dist
-            base = cen[i[ok]] + a[ok, None] * u
-            perp = np.stack([-u[:, 1], u[:, 0]], axis=1) * np.sqrt(h2[ok])[:, None]
-            pts += [base + perp, base - perp]
-        pt = np.concatenate(pts)
-        eps = 1e-12
-        pt = pt[np.all((pt >= lo - eps) & (pt <= hi + eps), axis=1)]
-        if pt.shape[0] == 0:
-            return True
-        diff = pt[:, None, :] - cen[None, :, :]
-        margin = (np.einsum("kji,kji->kj", diff, diff) - rad2[None, :]).min(axis=1)
-        return not bool((margin >= -1e-9).any())
-
 
 @dataclass(frozen=True)
 class KinematicBicycle(DynamicsModel):
@@ -329,14 +272,12 @@ class KinematicBicycle(DynamicsModel):
         return max(1, math.ceil(dt / self.integration_step - 1e-9))
 
     def step(self, x: ArrayLike, u: ArrayLike, dt: float) -> NDArray[np.float64]:
-        px, py, yaw, v = (float(c) for c in np.asarray(x, dtype=float))
-        steer, acc = (float(c) for c in np.asarray(u, dtype=float))
+        px, py, yaw, v = np.asarray(x, dtype=float).tolist()
+        steer, acc = np.asarray(u, dtype=float).tolist()
         n = self.substeps(dt)
-        h = dt / n
-        turn = math.tan(steer) / self.wheelbase
-        for _ in range(n):
-            px, py, yaw, v = px + v * math.cos(yaw) * h, py + v * math.sin(yaw) * h, yaw + v * turn * h, v + acc * h
-        return np.array([px, py, yaw, v])
+        out = np.empty(4)
+        kern.bicycle_advance(px, py, yaw, v, math.tan(steer) / self.wheelbase, acc, dt / n, n, out)  # compiled
+        return out
 
     def jacobians(self, x: ArrayLike, u: ArrayLike, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         xs = np.asarray(x, dtype=float).copy()
@@ -433,10 +374,3 @@ class KinematicBicycle(DynamicsModel):
 
     def braking_plan(self, x0: ArrayLike, n_h: int, dt: float) -> NDArray[np.float64]:
         return self.plan(x0, n_h, dt, 0.0, "brake")
-
-    def candidate_starts(self, problem: MpcProblem) -> list[NDArray[np.float64]]:
-        """Constant-steer plans (straight, half and full lock either way) that hold speed,
-        ease off or brake to rest."""
-        sm, x0, n_h, dt = self.steer_max, problem.x0, problem.n_h, problem.config.dt
-        steers = (0.0, 0.5 * sm, -0.5 * sm, sm, -sm)
-        return [self.plan(x0, n_h, dt, st, acc) for acc in ("brake", "ease", "hold") for st in steers]

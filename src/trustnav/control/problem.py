@@ -29,8 +29,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import _kernels as kern
-from trustnav.control import _qp
-from trustnav.control.barrier import TIMINGS, Barrier, Timing, cbf_rows
+from trustnav.control import _qp, starts
+from trustnav.control.barrier import TIMINGS, Barrier, RoadEdgeBarrier, Timing, cbf_rows
 from trustnav.control.costs import (
     Cost,
     LaneStage,
@@ -291,6 +291,21 @@ class MpcProblem:
         self._qp_structs: _qp.QpStructs | None = None  # DAQP's C structures over H, f, A, bu, bl
         self._seen = np.empty((0, self.n_h, 2))  # iterates of the compiled loop
         self._whole_args: tuple | None = None  # whole_step's compiled call's fixed arguments
+        # an exact-Hessian SQP where the rows' curvature is known in closed form (the single
+        # integrator tracking a velocity: positions linear in U, cost Hessian 2 I); H then holds the
+        # curvature of the last hard QP's multipliers (`curve`) or the cost's alone (`flatten`)
+        # a road's edges as the only user barrier: its rows are built by a compiled kernel, in the
+        # compiled SQP loop too (the drive's controller); (start, normal, room, front, 1 - gamma)
+        self._road = None
+        self._n_road = 0
+        if len(self.barriers) == 1 and type(self.barriers[0]) is RoadEdgeBarrier:
+            b = self.barriers[0]
+            if b.front == 0 or model.nx > 2:
+                self._road = np.array([*b.start, *b.normal, *b.room, b.front, 1.0 - b.gamma])
+                self._n_road = b.size()
+        self.exact_capable = self._fused is _fused_single_integrator
+        self.exact_hessian = self.exact_capable  # the solver may turn it off (SqpSolver(hessian=...))
+        self._curved = False
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -300,6 +315,7 @@ class MpcProblem:
         self.m_cbf = self.n_obs * self.n_h
         self.m = self.m_cbf + self.n_state_rows
         self.H = 2.0 * np.eye(self.n)
+        self._curved = False
         self.f = np.zeros(self.n)
         self.A = np.zeros((self.m, self.n))
         self.bl = np.zeros(self.n + self.m)
@@ -407,6 +423,26 @@ class MpcProblem:
             self.bl[self.n : self.n + self.n_decided] = -kern.INF  # decided rows: nothing to choose
         return cost
 
+    def curve(self, lam: NDArray[np.float64]) -> None:
+        """H of the next QP with the pedestrian rows' curvature weighted by the multipliers ``lam`` of
+        the last hard QP (DAQP's, simple bounds first); problems without :attr:`exact_hessian`
+        keep theirs (:func:`~trustnav.control._kernels.single_integrator_curvature`)."""
+        if self.exact_hessian and lam.shape[0] == self.n + self.m:  # (not a relaxed QP's)
+            kern.single_integrator_curvature(lam, self.n, self.one_minus_gamma, self.n_obs, self.n_p,
+                                             float(self.config.dt), kern.CURVATURE_FLOOR, self.H)  # fmt: skip
+            self._curved = True
+
+    @property
+    def curvature_floor(self) -> float:
+        """The compiled loops' eigenvalue floor of the exact Hessian; 0: the cost's Hessian alone."""
+        return kern.CURVATURE_FLOOR if self.exact_hessian else 0.0
+
+    def flatten(self) -> None:
+        """H back to the cost's Hessian alone (the first QP of a solve, recoveries, relaxations)."""
+        if self._curved:
+            kern.flat_hessian(self.H)
+            self._curved = False
+
     def compiled_steps(
         self,
         u: NDArray[np.float64],
@@ -424,7 +460,8 @@ class MpcProblem:
         models and costs, user barriers, no rows, DAQP's C API unavailable). Returns (iterations,
         state, cost, DAQP flag, the iterates whose QP was solved)."""
         fused = self._fused
-        if fused is None or self.n_user or self.m == 0 or not _qp.AVAILABLE:
+        road = self.n_user and self._road is not None and fused is _fused_bicycle  # the drive's controller
+        if fused is None or (self.n_user and not road) or self.m == 0 or not _qp.AVAILABLE:
             return None
         if fused is not _fused_single_integrator and fused is not _fused_bicycle:
             return None
@@ -441,7 +478,9 @@ class MpcProblem:
                 max_it, tol, u, seen, self.x0, self.stage, self.peds, self.vels, self.one_minus_gamma, self.r2,
                 c.dt, self.timing_code, self.n_obs, self.ulo, self.uhi, self.xs, self.sens, self.f, self.A, self.bl,
                 self.bu, self.g, *tail, max_it if full_steps is None else full_steps, merit_weight, np.empty_like(u),
+                self.H, self.n_p, self.curvature_floor,
             )  # fmt: skip
+            self._curved = True
         else:
             w, wheelbase, vmin, vmax, dt, n_sub = self._bicycle_constants()
             st = self.stage
@@ -449,7 +488,8 @@ class MpcProblem:
                 max_it, tol, merit_weight, u, seen, np.empty_like(u), self.x0, self.u_prev, st.points, st.yaw,
                 st.speed, w, wheelbase, vmin, vmax, self.peds, self.vels, self.one_minus_gamma, self.r2, dt, n_sub,
                 self.timing_code, self.n_obs, self.m_cbf, self.n_decided, self.ulo, self.uhi, self.xs, self.sens,
-                self.H, self.f, self.A, self.bl, self.bu, self.g, *tail,
+                self.H, self.f, self.A, self.bl, self.bu, self.g, *tail, float(self.origin[0]), float(self.origin[1]),
+                self._road if road else _NO_ROAD, self._n_road if road else 0,
             )  # fmt: skip
         return it, state, cost, flag, seen[: it - 1 if state < 0 else it]
 
@@ -488,7 +528,7 @@ class MpcProblem:
         n_p = self.n_p
         if not (
             ck is not None and ck[0] is self.cost and ck[1] is qs and ck[2] is self.r2 and ck[3] is self.f
-            and ck[4] >= max_it and ck[5] == (tol, primal_tol, merit_weight, full_steps)
+            and ck[4] >= max_it and ck[5] == (tol, primal_tol, merit_weight, full_steps, self.curvature_floor)
         ):  # fmt: skip
             ck = self._whole_args = self._whole_arguments(max_it, tol, primal_tol, merit_weight, full_steps)
             if ck is None:
@@ -496,6 +536,7 @@ class MpcProblem:
         if tr.shape[0] != n_p or not n_p or not self._plain_radii:
             return None
         bicycle = ck[9]
+        self._curved = not bicycle
         try:
             if bicycle:
                 out = _qp.bicycle_step(x, peds, vels, tr, prev, u_prev, max_it, *ck[6])
@@ -564,9 +605,10 @@ class MpcProblem:
                 *data, stage, np.empty((n_h, 2)), lam0, *gamma, float(goal[0]), float(goal[1]), float(r.gain),
                 float(r.v_max), float(c.dt), r.mode == "rollout", float(MAX_COORDINATE), float(tol), seen, self.r2,
                 int(self.timing_code), int(self.n_decided), self.ulo, self.uhi, self.xs, self.sens, self.f, self.A,
-                self.bl, self.bu, self.g, *qs.tail, int(full_steps), float(merit_weight),
+                self.bl, self.bu, self.g, *qs.tail, int(full_steps), float(merit_weight), self.H,
+                self.curvature_floor,
             )  # fmt: skip
-        settings = (tol, primal_tol, merit_weight, full_steps)
+        settings = (tol, primal_tol, merit_weight, full_steps, self.curvature_floor)
         return cost, qs, self.r2, self.f, seen.shape[0], settings, args, lam0, (*data, stage), bicycle
 
     def _bicycle_constants(self) -> tuple:
@@ -626,6 +668,10 @@ class MpcProblem:
         return g, (np.concatenate(jacs, axis=1) if sens is not None else None)
 
     def _fill_user_rows(self) -> None:
+        if self._road is not None:  # a road's edges: compiled, as the compiled SQP loop builds them
+            kern.road_fill(self.xs, self.sens, float(self.origin[0]), float(self.origin[1]), self._road, self._n_road,
+                           self.n_obs, self.n_p, self.A, self.bl, self.bu, self.g, self.n)  # fmt: skip
+            return
         g, jac = self._user_rows(self.xs, self.sens)
         rows = (np.arange(self.n_h)[:, None] * self.n_obs + self.n_p + np.arange(self.n_user)[None, :]).ravel()
         self.g[rows] = g.ravel()
@@ -659,14 +705,13 @@ class MpcProblem:
         return self.model.braking_plan(self.x0, self.n_h, self.config.dt)
 
     def candidate_starts(self) -> list[NDArray[np.float64]]:
-        """Starting plans for feasibility recovery (the model's; see
-        :meth:`DynamicsModel.candidate_starts`)."""
-        return self.model.candidate_starts(self)
+        """Starting plans for feasibility recovery (:func:`trustnav.control.starts.candidate_starts`)."""
+        return starts.candidate_starts(self)
 
     def first_step_infeasible(self, tol: float) -> bool:
         """True when the k = 0 rows admit no first input (a certificate that no plan is
-        hard-feasible); False when unknown."""
-        return self.model.first_step_infeasible(self, tol)
+        hard-feasible); False when unknown (:func:`trustnav.control.starts.first_step_infeasible`)."""
+        return starts.first_step_infeasible(self, tol)
 
     def binding_obstacles(self, count: int) -> NDArray[np.int64]:
         """Indices of the obstacles (pedestrians, then user barrier functions) with the lowest
@@ -722,6 +767,9 @@ class MpcProblem:
     def decision_rows_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
         """The rows an input sequence can change: :meth:`constraints_np` without the decided rows."""
         return self.constraints_np(u_flat)[self.n_decided :]
+
+
+_NO_ROAD = np.zeros(8)  # the compiled bicycle loop's road argument where there is none
 
 
 def whole_step_kernel_loaded() -> None:

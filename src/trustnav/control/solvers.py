@@ -108,8 +108,18 @@ class SqpSolver:
     slacks with an exact L1 penalty ``slack_penalty`` (plus a tiny quadratic term), one per CBF
     row for the most binding pedestrians and fewer, shared ones for the rest
     (:meth:`_slack_columns`), so the QP stays small with hundreds of pedestrians; a hard-feasible
-    plan seen on the way beats a relaxed one. Nonlinear models take a backtracking step on an L1
-    merit. Every point evaluated is checked exactly; an unconverged solve whose best plan violates
+    plan seen on the way beats a relaxed one. Nonlinear models (and linear ones after
+    ``full_step_iterations``) take a backtracking step on the L1 merit cost + mu * (violation of
+    every row the QP holds), accepted on Armijo's sufficient decrease; when no trial decreases the
+    merit, the solve ends at the iterate (no progress is possible along the QP's step), so the
+    iteration limit is reached only by steps that keep making progress. ``hessian="exact"``
+    (default): where the rows' curvature is known in closed form (the
+    single integrator tracking a velocity, :attr:`MpcProblem.exact_capable`), every QP after a
+    solve's sixth (``_kernels.CURVATURE_START``: steps that converge in six stay as they were)
+    adds it, weighted by the last hard QP's multipliers and convexified by clipping eigenvalues
+    (an exact-Hessian SQP, converging in a few iterations where many rows are active);
+    ``"gauss-newton"``: the cost's Hessian alone, as before issue 36. Every point evaluated is
+    checked exactly; an unconverged solve whose best plan violates
     a row runs the feasibility SQP from it (restoration). With a deadline (seconds) the best
     checked plan so far is returned when it passes; the recovery, phase 1 included, stops at 80 %
     of the deadline (the rest is for relaxing). Problems solved without an infeasible QP never reach any of this.
@@ -158,6 +168,7 @@ class SqpSolver:
         phase1_qps: int = 48,
         phase1_progress: float = 0.2,
         phase1_seed: int = 0,
+        hessian: str = "exact",
     ) -> None:
         if max_iter < 1 or not tol > 0 or not slack_penalty > 0 or not slack_quadratic > 0:
             raise ValueError("max_iter >= 1, tol > 0, slack_penalty > 0 and slack_quadratic > 0 are required")
@@ -167,6 +178,9 @@ class SqpSolver:
             raise ValueError(
                 "phase1_starts >= 0, phase1_iterations >= 1, phase1_qps >= 0 and 0 <= phase1_progress < 1 are required"
             )
+        if hessian not in ("exact", "gauss-newton"):
+            raise ValueError(f"hessian must be 'exact' or 'gauss-newton', got {hessian!r}")
+        self.hessian = hessian
         self.max_iter = max_iter
         self.tol = tol
         self.slack_penalty = slack_penalty
@@ -185,6 +199,7 @@ class SqpSolver:
         self._models: dict[tuple, daqp.Model] = {}
         self._owners: dict[tuple, MpcProblem] = {}
         self._qp_seconds: dict[tuple, float] = {}  # last solve time per size
+        self._lam: NDArray[np.float64] = np.zeros(0)  # the multipliers of the last QP solved
 
     # ---- QPs ----
     def _slack_columns(self, p: MpcProblem, row_pedestrians: int | None = None) -> tuple[NDArray[np.int64], int]:
@@ -258,15 +273,16 @@ class SqpSolver:
         else:
             # H of a linear model with a constant-Hessian cost is constant: leave it in place
             # unless another problem set it; so is the feasibility QP's (per size)
-            if ((p.nonlinear or relaxed) and not phase1) or self._owners.get(key) is not p:
+            if ((p.nonlinear or relaxed or p.exact_hessian) and not phase1) or self._owners.get(key) is not p:
                 self._owners[key] = p
                 flag = model.update(H=h, f=f, A=a, bupper=bu, blower=bl)
             else:
                 flag = model.update(f=f, A=a, bupper=bu, blower=bl)
             if flag is not None and flag < 0:
                 return None, flag
-        x, _, exitflag, _ = model.solve()
+        x, _, exitflag, info = model.solve()
         self._qp_seconds[key] = time.perf_counter() - t_start
+        self._lam = info["lam"]
         if exitflag < 0:
             return None, exitflag
         return np.asarray(x if phase1 else x[: p.n]), exitflag
@@ -294,6 +310,7 @@ class SqpSolver:
         feasibility SQP of :meth:`_phase1` runs from varied starts. Returns (start, step, cost,
         tried) or (None, None, nan, tried), tried counting the candidate starts only."""
         p.build(u)  # binding pedestrians at the point where the QP failed
+        p.flatten()  # the candidates' hard QPs with the cost's Hessian: no multipliers there yet
         memo.first_time(u)
         if budget <= 0:  # the candidates' budget is spent: the feasibility SQP only
             start, step, cost = self._phase1(p, best, until, memo)
@@ -393,6 +410,7 @@ class SqpSolver:
         it drives the exact violation down (every point offered to ``best``) and returns None.
         None also when it stalls or runs out of budget or time."""
         cost = p.build(u)
+        p.flatten()
         chk = p.check_built(cost)
         for _ in range(self.phase1_iterations):
             if memo.phase1_qps <= 0 or (not to_hard_qp and chk.worst <= 1e-3 * FEAS_TOL):
@@ -459,6 +477,7 @@ class SqpSolver:
         checked, and beaten or restored where a better checked plan exists."""
         t0 = time.perf_counter()
         p = problem
+        p.exact_hessian = p.exact_capable and self.hessian == "exact"
         if type(u0) is np.ndarray and u0.dtype == np.float64 and u0.shape == (p.n_h, p.ulo.shape[0]):
             u = np.empty(u0.shape)  # the controller's warm start: clipped in one compiled call
             kern.clip_plan(u0, p.ulo, p.uhi, u)
@@ -466,6 +485,8 @@ class SqpSolver:
             u = np.minimum(np.maximum(np.asarray(u0, dtype=float).reshape(p.n_h, -1), p.ulo), p.uhi)
         until = None if deadline is None else t0 + deadline
         compiled = self._run_compiled(p, u, until)
+        if compiled is None:
+            p.flatten()  # the first QP of a solve: the cost's Hessian alone
         if compiled is not None and compiled[1] > 0:
             # the common case: the compiled loop converged; the QP buffers hold the data at u
             final = p.check_built(compiled[2])
@@ -557,6 +578,7 @@ class SqpSolver:
         last = self._compiled_budget(p, None if deadline is None else time.perf_counter() + deadline)
         if last is None:
             return None
+        p.exact_hessian = p.exact_capable and self.hessian == "exact"
         return p.whole_step(x, peds, vels, tr, prev, u_prev, last, self.tol, PRIMAL_TOL, MERIT_WEIGHT,
                             self.full_step_iterations, FEAS_TOL)  # fmt: skip
 
@@ -590,6 +612,8 @@ class SqpSolver:
         s.fresh = False
         s.seen.append(s.u)  # ranked only when needed (recovery, relaxation, an unconverged end)
         s.step, flag = self._qp(p, s.slack, s.until if s.it > 1 else None)  # the first QP always runs
+        if s.step is not None and s.slack is None and s.it >= kern.CURVATURE_START:
+            p.curve(self._lam)  # the next QP's Hessian (exact-Hessian problems)
         if s.step is not None or flag == DEADLINE or s.slack is not None or p.m_cbf == 0:
             return flag
         self._settle(p, s.best, s.seen)
@@ -601,10 +625,13 @@ class SqpSolver:
             s.restarts += tried
             if s.step is not None:
                 s.u, s.cost, s.recovered = start, c_start, True
+                if s.it >= kern.CURVATURE_START:
+                    p.curve(self._lam)
         if s.step is None:  # no hard-feasible start found: relax from the best point seen
             if s.best.u is not None:
                 s.u = s.best.u.copy()
             s.cost = p.build(s.u)
+            p.flatten()
             s.slack = self._slack_columns(p)
             s.step, flag = self._qp(p, s.slack, s.until)
         return flag
@@ -617,15 +644,29 @@ class SqpSolver:
         d = s.step.reshape(s.u.shape)
         alpha = 1.0
         if p.nonlinear or s.it > self.full_step_iterations:
-            viol0 = float(np.maximum(0.0, -p.g).sum())
-            mu = 10.0 * self.slack_penalty if s.slack is not None else MERIT_WEIGHT
+            if s.slack is not None:  # relaxed: the CBF rows' violation, a simple decrease (as before)
+                mu = 10.0 * self.slack_penalty
+                viol0, slope = float(np.maximum(0.0, -p.g).sum()), 0.0
+            else:  # Armijo on cost + mu * the violation of every row (the compiled loops' arithmetic)
+                mu = MERIT_WEIGHT
+                viol0 = kern.merit_violation(p.bl, p.bu, p.n, p.n_decided)
+                slope = kern.merit_slope(p.f, s.step, p.n, mu, viol0)
             merit0 = s.cost + mu * viol0
+            accepted = False
             for _ in range(8):
                 trial = np.minimum(np.maximum(s.u + alpha * d, p.ulo), p.uhi)  # np.clip, without its overhead
                 c1 = p.build(trial)
-                if c1 + mu * float(np.maximum(0.0, -p.g).sum()) <= merit0 + 1e-12 * (1 + abs(merit0)):
+                if s.slack is not None:
+                    v1 = float(np.maximum(0.0, -p.g).sum())
+                else:
+                    v1 = kern.merit_violation(p.bl, p.bu, p.n, p.n_decided)
+                if c1 + mu * v1 <= merit0 + kern.ARMIJO * alpha * slope + 1e-12 * (1 + abs(merit0)):
+                    accepted = True
                     break
                 alpha *= 0.5
+            if not accepted and s.slack is None:  # no decrease of the merit along the step: stop here
+                s.fresh = False
+                return 0.0
             s.u, s.cost, s.fresh = trial, c1, True  # the last build was at this trial: reuse it
         else:
             s.u = s.u + alpha * d  # the QP keeps u + d within the input bounds (to DAQP's tolerance)
@@ -810,11 +851,16 @@ class AuthorsSlsqpSolver:
 
 
 def make_solver(name: str) -> SqpSolver | SlsqpSolver | AuthorsSlsqpSolver:
-    """A solver by name: 'sqp' (default), 'slsqp' (SLSQP, tuned) or 'slsqp-authors' (the authors' style)."""
+    """A solver by name: 'sqp' (default), 'sqp-gauss-newton' (the SQP without the rows' curvature, as
+    before issue 36), 'slsqp' (SLSQP, tuned) or 'slsqp-authors' (the authors' style)."""
     if name in ("sqp", "sqp-daqp", "default"):
         return SqpSolver()
+    if name == "sqp-gauss-newton":
+        return SqpSolver(hessian="gauss-newton")
     if name == "slsqp":
         return SlsqpSolver()
     if name == "slsqp-authors":
         return AuthorsSlsqpSolver()
-    raise ValueError(f"unknown solver {name!r}: expected 'sqp' (default), 'slsqp' (tuned) or 'slsqp-authors'")
+    raise ValueError(
+        f"unknown solver {name!r}: expected 'sqp' (default), 'sqp-gauss-newton', 'slsqp' (tuned) or 'slsqp-authors'"
+    )

@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from trustnav.control._validate import require_positive
@@ -99,29 +100,15 @@ class Yielder:
             return None
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
-        ts = np.arange(0.0, c.lookahead + 1e-9, c.sample)  # (T,)
-        pred = pedestrians[:, None, :] + velocities[:, None, :] * ts[None, :, None]  # (N, T, 2)
-        s = (pred - road_start) @ axis  # along the road (N, T)
-        d = (pred - road_start) @ road_normal  # left of the line (N, T)
         s_car = float((position - road_start) @ axis)
-        r = radii[:, None]
-        v_lat = velocities @ road_normal  # (N,)
-        walks_left = (v_lat > c.crossing_speed)[:, None]
-        walks_right = (v_lat < -c.crossing_speed)[:, None]
-        room_left = (d + r <= left - c.tolerance) & ~walks_left  # pass on their left: behind a walker going right
-        room_right = (d - r >= -right + c.tolerance) & ~walks_right
-        near = (d - r < left) & (d + r > -right)  # within r of the corridor
-        ahead = s > s_car  # beside or behind the car is the MPC's: stopping there helps no one
-        blocking = near & ahead & ~room_left & ~room_right  # (N, T)
-        best: tuple[float, int] | None = None
-        v = max(speed, 0.1)
-        for j in np.flatnonzero(blocking.any(axis=1)):
-            k0 = int(np.argmax(blocking[j]))  # the first sample at which j blocks
-            if k0 > 0 and (float(s[j, :k0].max()) + radii[j] - s_car) / v + c.clear_time <= ts[k0]:
-                continue  # the car is past them well before they block
-            stop = float(s[j, blocking[j]].min()) - radii[j] - c.gap
-            if best is None or stop < best[0]:
-                best = (stop, int(j))
+        stop_s, j = _blocking(
+            np.ascontiguousarray(pedestrians, dtype=float), np.ascontiguousarray(velocities, dtype=float),
+            np.ascontiguousarray(radii, dtype=float), np.ascontiguousarray(road_start, dtype=float), axis,
+            np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
+            float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
+            max(float(speed), 0.1),
+        )  # fmt: skip
+        best = None if j < 0 else (stop_s, j)
         if best is None:
             return None
         stop_s, j = best
@@ -139,3 +126,50 @@ class Yielder:
         else:
             note = "yielding: waiting for a pedestrian the car cannot pass on the road"
         return YieldDecision(stop, cap, j, note)
+
+
+@njit(cache=True)
+def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
+              clear_time, gap, v):  # fmt: skip
+    """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
+    lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
+    sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
+    radius of the corridor, ahead of the car, and leave no room on either side (a walker crossing
+    toward a side closes it); one the car passes well before they block is skipped."""
+    ts = np.arange(0.0, lookahead + 1e-9, sample)
+    n_t = ts.shape[0]
+    s = np.empty(n_t)
+    block = np.empty(n_t, dtype=np.bool_)
+    best_stop, best_j = 0.0, -1
+    for j in range(peds.shape[0]):
+        r = radii[j]
+        v_lat = vels[j, 0] * normal[0] + vels[j, 1] * normal[1]
+        walks_left = v_lat > crossing
+        walks_right = v_lat < -crossing
+        first = -1
+        low = np.inf
+        for k in range(n_t):
+            px = peds[j, 0] + vels[j, 0] * ts[k] - road_start[0]
+            py = peds[j, 1] + vels[j, 1] * ts[k] - road_start[1]
+            s[k] = px * axis[0] + py * axis[1]
+            d = px * normal[0] + py * normal[1]
+            room_left = (d + r <= left - tol) and not walks_left
+            room_right = (d - r >= -right + tol) and not walks_right
+            near = (d - r < left) and (d + r > -right)
+            block[k] = near and s[k] > s_car and not room_left and not room_right
+            if block[k]:
+                if first < 0:
+                    first = k
+                low = min(low, s[k])
+        if first < 0:
+            continue
+        if first > 0:
+            top = s[0]
+            for k in range(1, first):
+                top = max(top, s[k])
+            if (top + r - s_car) / v + clear_time <= ts[first]:
+                continue  # the car is past them well before they block
+        stop = low - r - gap
+        if best_j < 0 or stop < best_stop:
+            best_stop, best_j = stop, j
+    return best_stop, best_j
