@@ -18,6 +18,7 @@ file and how to pass another.
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import sys
 import urllib.request
@@ -129,8 +130,9 @@ class PersonDetector:
     ``model``: the ONNX file (None: :func:`resolve_model`; its input fixes the square network
     input S, 416 for the release); ``min_score``: objectness x person
     score kept; ``nms_iou``: overlap at which NMS merges two boxes; ``threads``: onnxruntime's
-    intra-op threads. Calling it returns (boxes (N, 4) [x1, y1, x2, y2] in frame pixels, scores (N,)),
-    best first; ``last_seconds`` holds the latest call's time in the network.
+    intra-op threads; ``tile_below``: frames the network would see smaller than this scale are also
+    searched in square windows (:meth:`windows`). Calling it returns (boxes (N, 4) [x1, y1, x2, y2]
+    in frame pixels, scores (N,)), best first; ``last_seconds`` holds the latest call's time in the network.
     """
 
     def __init__(
@@ -140,6 +142,7 @@ class PersonDetector:
         min_score: float = 0.25,
         nms_iou: float = 0.45,
         threads: int = 1,
+        tile_below: float = 0.5,
         download: bool = True,
     ) -> None:
         if not 0.0 < min_score < 1.0:
@@ -148,6 +151,9 @@ class PersonDetector:
             raise ValueError(f"nms_iou must be in (0, 1], got {nms_iou!r}")
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
+        if not 0.0 <= tile_below <= 1.0:
+            raise ValueError(f"tile_below must be in [0, 1] (0: the whole frame only), got {tile_below!r}")
+        self.tile_below = float(tile_below)
         self.path = resolve_model(model, download=download)
         self.min_score = float(min_score)
         self.nms_iou = float(nms_iou)
@@ -175,6 +181,19 @@ class PersonDetector:
         self._grid, self._stride = _anchors(self.input_size)
         self.last_seconds = 0.0
 
+    def windows(self, h: int, w: int) -> list[tuple[int, int, int, int]]:
+        """Where the network looks: the whole frame, and where that shrinks the frame below
+        ``tile_below`` (a 1280 x 720 frame to 0.33), also square windows of the shorter side across
+        the longer one (overlapping by at least a fifth), so that people of ~100 px keep ~40 px."""
+        out = [(0, 0, w, h)]
+        if self.input_size / max(h, w) >= self.tile_below:
+            return out
+        side = min(h, w)
+        n = math.ceil((max(h, w) - side) / (0.8 * side)) + 1
+        for start in np.linspace(0, max(h, w) - side, n).round().astype(int):
+            out.append((int(start), 0, int(start) + side, h) if w >= h else (0, int(start), w, int(start) + side))
+        return out
+
     def __call__(self, frame: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Person boxes and scores of one RGB frame (H x W x 3 uint8), best first."""
         import time
@@ -183,18 +202,43 @@ class PersonDetector:
 
         frame = check_frame(frame)
         h, w = frame.shape[:2]
+        t0 = time.perf_counter()
+        found = [self._window(frame, win) for win in self.windows(h, w)]
+        self.last_seconds = time.perf_counter() - t0
+        boxes = np.concatenate([b for b, _ in found])
+        scores = np.concatenate([s for _, s in found])
+        if len(found) == 1 or not len(boxes):
+            return boxes, scores
+        xywh = np.concatenate([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]], axis=1)
+        idx = np.asarray(cv2.dnn.NMSBoxes(xywh.tolist(), scores.tolist(), self.min_score, self.nms_iou), dtype=int)
+        idx = idx.reshape(-1)
+        idx = idx[np.argsort(-scores[idx], kind="stable")]
+        return boxes[idx], scores[idx]
+
+    def _window(
+        self, frame: NDArray[np.uint8], win: tuple[int, int, int, int]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        import cv2
+
+        x0, y0, x1, y1 = win
+        crop = frame[y0:y1, x0:x1]
+        h, w = crop.shape[:2]
         s = self.input_size
         ratio = min(s / h, s / w)
         nh, nw = max(1, round(h * ratio)), max(1, round(w * ratio))
         canvas = np.full((s, s, 3), PAD_VALUE, dtype=np.uint8)
-        canvas[:nh, :nw] = cv2.resize(frame, (nw, nh), interpolation=cv2.INTER_LINEAR)[:, :, ::-1]  # RGB -> BGR
+        canvas[:nh, :nw] = cv2.resize(crop, (nw, nh), interpolation=cv2.INTER_AREA)[:, :, ::-1]  # RGB -> BGR
         blob = canvas.transpose(2, 0, 1)[None].astype(np.float32)
-        t0 = time.perf_counter()
         out = self._session.run(None, {self._input: blob})[0][0]
-        self.last_seconds = time.perf_counter() - t0
         if out.ndim != 2 or out.shape != (len(self._grid), 85):
             raise ValueError(f"person detector model {self.path}: output {out.shape}, expected ({len(self._grid)}, 85)")
-        return decode(out, self._grid, self._stride, ratio, (w, h), self.min_score, self.nms_iou)
+        boxes, scores = decode(out, self._grid, self._stride, ratio, (w, h), self.min_score, self.nms_iou)
+        if (x0, y0, x1, y1) != (0, 0, frame.shape[1], frame.shape[0]) and len(boxes):
+            # a box cut by a window's inner edge is a part of a person the whole frame or the next window holds
+            inner = ((boxes[:, 0] <= 1) & (x0 > 0)) | ((boxes[:, 2] >= w - 2) & (x1 < frame.shape[1]))
+            inner |= ((boxes[:, 1] <= 1) & (y0 > 0)) | ((boxes[:, 3] >= h - 2) & (y1 < frame.shape[0]))
+            boxes, scores = boxes[~inner], scores[~inner]
+        return boxes + np.array([x0, y0, x0, y0], dtype=np.float64), scores
 
 
 def _anchors(size: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

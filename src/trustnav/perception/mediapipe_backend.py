@@ -720,13 +720,13 @@ class MediaPipePoseBackend:
     def _confirm(
         self, g: _Graphs, frame: NDArray[np.uint8], rois: NDArray, score: float, box: NDArray, w: int, h: int
     ) -> tuple | None:
-        """The landmark fit that confirms a detector box: the first of ``rois`` (then the box's own
-        square shrunk by :data:`RETRY_SCALES`, for small people) whose landmarks :meth:`_person`
-        accepts and whose extent overlaps the box by IoU >= 0.5 (else the first with
-        :data:`MIN_FIT_IOU`: in a group the fit can take in a neighbour's limbs). The person keeps the
-        detector's box (head top to soles, as people are labelled; the landmarks stop at the eyes and
-        heels) and the fit's keypoints; its score is :data:`CONFIRMED_FLOOR` + the rest x the
-        detection score, times the body's landmark presence (the tracker takes boxes >= 0.4 as sure)."""
+        """The landmark fit that confirms a detector box: the first of ``rois`` (then the box's own square shrunk by
+        :data:`RETRY_SCALES`, for small people) whose landmarks :meth:`_person` accepts and whose extent
+        overlaps the box by IoU >= 0.5 (else the first with :data:`MIN_FIT_IOU`: in a group the fit can take
+        in a neighbour's limbs). The person keeps the detector's box (head top to soles, as people are
+        labelled), stretched up or down to the fit's padded extent where a fit with IoU >= 0.5 reaches
+        beyond it, and the fit's keypoints; its score is :data:`CONFIRMED_FLOOR` + the rest x the detection
+        score, times the body's landmark presence (the tracker takes boxes >= 0.4 as sure)."""
 
         def accept(lm: NDArray[np.float64], roi: NDArray) -> Person | None:
             return self._person(lm, CONFIRMED_FLOOR + (1.0 - CONFIRMED_FLOOR) * score, w, h, roi)
@@ -746,8 +746,12 @@ class MediaPipePoseBackend:
                 best = out
         if best is None:
             return None
-        person = replace(best[3], bbox=np.asarray(box, dtype=np.float64).copy())
-        person.extra["fit_iou"] = box_iou(best[3].bbox, box)
+        fit_iou = box_iou(best[3].bbox, box)
+        bbox = np.asarray(box, dtype=np.float64).copy()
+        if fit_iou >= 0.5:  # a fit of this person: its head top and soles where the box stops short
+            bbox[1], bbox[3] = min(bbox[1], best[3].bbox[1]), max(bbox[3], best[3].bbox[3])
+        person = replace(best[3], bbox=bbox)
+        person.extra["fit_iou"] = fit_iou
         return (*best[:3], person)
 
     def _segment_search(
