@@ -569,6 +569,18 @@ class MediaPipePoseBackend:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _submit(self, fn: Any, item: Any) -> Any:
+        """``fn(graphs, item)`` on a worker, as a future (the caller goes on meanwhile)."""
+
+        def task() -> Any:
+            g = self._graphs.get()
+            try:
+                return fn(g, item)
+            finally:
+                self._graphs.put(g)
+
+        return self._executor.submit(task)
+
     def _map(self, fn: Any, items: list[Any]) -> list[Any]:
         def task(item: Any) -> Any:
             g = self._graphs.get()

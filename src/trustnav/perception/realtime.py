@@ -53,7 +53,7 @@ class RealtimeConfig:
     every frame, an integer k on one frame in k (the others carry every person by its velocity)."""
 
     landmark_every: int = 3
-    max_fits: int = 4
+    max_fits: int = 3
     carry_frames: int = 4
     search_frames: int | None = None
 
@@ -144,6 +144,22 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         t0 = time.perf_counter()
         for f in self._people:  # where each followed person should be now
             f.box = _shifted(f.box, f.velocity, w, h)
+        # followed people due a fit, the most overdue first: fitted on their own region (moved by their
+        # velocity) on the two workers while the detector runs on this thread
+        due = sorted(
+            (i for i, f in enumerate(self._people) if index - f.fitted_at >= cfg.landmark_every),
+            key=lambda i: self._people[i].fitted_at,
+        )[: cfg.max_fits]
+        for i in due:
+            f = self._people[i]
+            f.roi = f.roi.copy()
+            f.roi[:2] += f.velocity * (index - f.fitted_at)
+        pending = [
+            self._submit(
+                lambda g, f: self._confirm(g, frame, f.roi[None, :], f.fitted.score, f.box, w, h), self._people[i]
+            )
+            for i in due
+        ]
         detect = cfg.search_frames is None or index % cfg.search_frames == 0 or not self._people
         boxes, scores = self.detector(frame) if detect else (np.zeros((0, 4)), np.zeros(0))
         t1 = time.perf_counter()
@@ -157,26 +173,22 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             f.box, f.seen_at = boxes[j].astype(np.float64), index
         self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < cfg.landmark_every]
         new = [j for j in new if not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)]
-        # followed people due a fit: seen on this frame, the most overdue first, max_fits of them
-        due = sorted(
-            (i for i, f in enumerate(self._people) if f.seen_at == index and index - f.fitted_at >= cfg.landmark_every),
-            key=lambda i: self._people[i].fitted_at,
-        )[: cfg.max_fits]
+        # new boxes, the largest (nearest) first, in what is left of the frame's fits (at least one)
+        new.sort(key=lambda j: boxes[j][1] - boxes[j][3])
+        new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
         jobs = [("new", j, self._regions(boxes[j], []), float(scores[j]), boxes[j]) for j in new]
-        jobs += [("due", i, self._regions(self._people[i].box, [(self._people[i].roi, 0.0)]),
-                  self._people[i].fitted.score, self._people[i].box) for i in due]  # fmt: skip
         results = self._map(lambda g, job: self._confirm(g, frame, job[2], job[3], job[4], w, h), jobs)
+        for i, fut in zip(due, pending, strict=True):
+            f, res = self._people[i], fut.result()
+            f.fitted_at = index  # a failed fit keeps its last keypoints; tried again in landmark_every
+            if res is not None and box_iou(res[3].bbox, f.box) >= 0.3:
+                # the fit's box is the predicted one; where the detector boxed the person, its box
+                bbox = res[3].bbox if f.seen_at != index else f.box
+                f.fitted, f.roi = replace(res[3], bbox=np.asarray(bbox, dtype=np.float64).copy()), res[1]
         t2 = time.perf_counter()
         rejected: list[Rejection] = []
         fresh: list[_Followed] = []
-        for (kind, k, _, score, box), res in zip(jobs, results, strict=True):
-            if kind == "due":
-                f = self._people[k]
-                if res is not None:
-                    f.fitted, f.fitted_at, f.roi = res[3], index, res[1]
-                else:
-                    f.fitted_at = index  # kept on its last fit's keypoints; tried again in landmark_every
-                continue
+        for (_, _, _, score, box), res in zip(jobs, results, strict=True):
             if res is None:
                 self._unconfirmed.append((index, np.asarray(box, dtype=np.float64)))
                 rejected.append(Rejection(tuple(map(float, box)), score, "the landmark model found no upright person"))
@@ -195,7 +207,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             f.person = _carried(f, index, w, h)
         keep = one_box_per_person([f.person for f in self._people], self.config.duplicate_iou)
         self._people = [self._people[i] for i in keep]
-        self._fits.append(len(jobs))
+        self._fits.append(len(jobs) + len(due))
         self.last_rejections = rejected
         self.last_timing = {"detection": t1 - t0, "landmarks": t2 - t1}
         self._frame_index += 1
