@@ -109,17 +109,27 @@ def _people(out: list, estimator: TrustEstimator | None = None, t: float = 0.0) 
         traits = {i: (st.eye, st.smartphone, st.trust) for i, st in tracks.items()}
     nan3 = (math.nan, math.nan, math.nan)
     return [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone,
+             "carried": bool(tp.person.extra.get("carried")),
              **dict(zip(("eye_trait", "phone_trait", "trust"), traits.get(tp.track_id, nan3), strict=True))}
             for tp in out]  # fmt: skip
 
 
-def run_reference(frames: list, fps: float, model: LookingModel, body: bool = True) -> tuple[list[list[dict]], float]:
-    """Every frame through the offline pipeline; per frame its people, and the frames per second."""
-    backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body), video=True)
+def run_reference(
+    frames: list, fps: float, model: LookingModel, body: bool = True, proposer: str = "detector", realtime: bool = False
+) -> tuple[list[list[dict]], float]:
+    """Every frame through the offline pipeline (``proposer``; or, ``realtime``, the real-time backend
+    handed the frames as fast as it takes them: its throughput); per frame its people, and the
+    frames per second."""
+    if realtime:
+        from trustnav.perception.realtime import RealtimePoseBackend
+
+        backend: MediaPipePoseBackend = RealtimePoseBackend()
+    else:
+        backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body, proposer=proposer), video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     pipeline(frames[0])  # warm-up, then start again
     backend.reset()
-    pipeline.tracker = PersonTracker(fps=fps)
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     t0 = time.perf_counter()
     trust = TrustEstimator(SECONDS_TRUST)
     out = [_people(pipeline(f, time=i / fps), trust, i / fps) for i, f in enumerate(frames)]
@@ -265,20 +275,30 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     load0 = os.getloadavg()[0]
     reference, ref_fps = run_reference(walk, fps, model, True)
     load = round((load0 + os.getloadavg()[0]) / 2, 2)
-    ref = [[{**p, "carried": False} for p in people] for people in reference]
-    rows.append({"name": "walk_a", "mode": "offline", "fps": ref_fps, **labelled_scores(ref, names),
-                 "traits_hz_median": traits_hz(ref, fps), "load": load})  # fmt: skip
+    rows.append({"name": "walk_a", "mode": "offline", "proposer": "detector", "fps": ref_fps,
+                 **labelled_scores(reference, names), "traits_hz_median": traits_hz(reference, fps),
+                 "load": load})  # fmt: skip
+    if args.baseline:  # the proposers before issue 35, in the same run: speeds as ratios
+        load0 = os.getloadavg()[0]
+        base, base_fps = run_reference(walk, fps, model, True, proposer="blazepose")
+        rows.append({"name": "walk_a", "mode": "offline", "proposer": "blazepose", "fps": base_fps,
+                     **labelled_scores(base, names), "traits_hz_median": traits_hz(base, fps),
+                     "load": round((load0 + os.getloadavg()[0]) / 2, 2)})  # fmt: skip
     for _ in range(args.repeat):
+        load0 = os.getloadavg()[0]
+        _, throughput = run_reference(walk, fps, model, realtime=True)
+        load_tp = round((load0 + os.getloadavg()[0]) / 2, 2)
         rt = run_stream(walk, fps, model, realtime=True)
         cmp = compare(reference, rt["per_frame"], fps)
         rows.append({"name": "walk_a", "mode": "realtime", "stream_fps": fps, "fps": rt["fps"],
                      "dropped": rt["dropped"], "latency_ms_p95": rt["latency_ms_p95"],
                      **labelled_scores(rt["per_frame"], names),
                      "first_detection_s": cmp["first_detection_s"], "recall_vs_offline": cmp["recall_vs_reference"],
-                     "traits_hz_median": traits_hz(rt["per_frame"], fps), "load": rt["load"]})  # fmt: skip
-    cols = ["name", "mode", "stream_fps", "fps", "dropped", "latency_ms_p95", "recall_labelled", "labelled_people",
-            "false_boxes", "duplicates", "first_detection_s", "recall_vs_offline", "traits_hz_median",
-            "load"]  # fmt: skip
+                     "traits_hz_median": traits_hz(rt["per_frame"], fps), "load": rt["load"],
+                     "throughput_fps": throughput, "load_throughput": load_tp})  # fmt: skip
+    cols = ["name", "mode", "proposer", "stream_fps", "fps", "throughput_fps", "dropped", "latency_ms_p95",
+            "recall_labelled", "labelled_people", "false_boxes", "duplicates", "first_detection_s",
+            "recall_vs_offline", "traits_hz_median", "load", "load_throughput"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:
@@ -292,6 +312,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
     ap.add_argument("--stream-fps", type=float, default=15.0, help="--realtime: the stream's frame rate")
+    ap.add_argument("--baseline", action="store_true",
+                    help="--realtime: also the offline row with the proposers before issue 35 (BlazePose tiles, "
+                    "segmentation, HOG), in the same run")  # fmt: skip
     ap.add_argument("--repeat", type=int, default=1, help="--realtime: streamed runs (the spread of the timings)")
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)

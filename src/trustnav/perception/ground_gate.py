@@ -9,13 +9,14 @@ feet lie below the horizon, and h / (v_f - v_0) is H / c for every person of one
   on the ground and a person of :data:`HEIGHT_RANGE_M` is projected there; the box must be that tall,
   within ``tolerance``, and its feet below the horizon.
 - **Camera unknown**: the horizon and H / c are fitted from the frame's own confident people (and,
-  in a video, those of the last frames: :class:`HorizonFit` keeps a window of them), by least squares
-  on h = k v_f - k v_0 after dropping the worst outliers; a box whose height is off the line by more
-  than a factor ``tolerance`` x the spread of human heights, or whose feet lie above the fitted
-  horizon, is rejected. With fewer than :data:`MIN_PEOPLE` people in the window only the prior is
-  used: the feet lie below ``prior_horizon`` x the frame's height, and a box is at least
-  ``prior_min_height`` of the distance from its feet to that row (a logo on a dashboard, at the bottom
-  of the image, is far smaller than a person standing there would be).
+  in a video, those of the last frames: :class:`HorizonFit` keeps a window of them), by least
+  squares on h = k v_f - k v_0 over the people that agree with the line through two of them that
+  most agree with; a box whose height is off the line by more than a factor ``tolerance`` x the
+  spread of human heights, or whose feet lie above the fitted horizon, is rejected. With fewer than
+  :data:`MIN_PEOPLE` people in the window only the prior is used: the feet lie below
+  ``prior_horizon`` x the frame's height, and a box is at least ``prior_min_height`` of the distance
+  from its feet to that row (a logo on a dashboard, at the bottom of the image, is far smaller than
+  a person standing there would be).
 
 People cut by the frame's bottom edge have no feet in view: the gate does not judge them.
 """
@@ -37,6 +38,8 @@ __all__ = ["HEIGHT_RANGE_M", "MIN_PEOPLE", "GateConfig", "HorizonFit", "Rejectio
 HEIGHT_RANGE_M = (1.0, 2.1)
 #: People needed (in the fit's window) to fit a horizon from the frame itself.
 MIN_PEOPLE = 3
+#: A person lies on a fitted line when their height is within this log-ratio of it (~ +-25 %).
+INLIER = 0.22
 
 
 @dataclass(frozen=True)
@@ -106,14 +109,29 @@ class HorizonFit:
         if np.ptp(v) < 0.05 * max(float(np.median(h)), 1.0):
             # all feet on one row: the slope is not determined; the heights alone give the scale
             return None
-        keep = np.ones(len(v), dtype=bool)
-        for _ in range(2):  # least squares, then again without the worst third beyond 25 %
-            a, b = np.polyfit(v[keep], h[keep], 1)
-            resid = np.abs(np.log(np.maximum(h, 1.0) / np.maximum(a * v + b, 1.0)))
-            worst = resid > max(0.25, float(np.quantile(resid, 0.67)))
-            if keep.sum() - worst.sum() < MIN_PEOPLE:
-                break
-            keep = ~worst
+        # the line with the most people within INLIER of it, over lines through two people (all
+        # pairs, or a fixed sample of them: deterministic), then least squares on those people
+        n = len(v)
+        pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+        if len(pairs) > 300:
+            pick = np.random.default_rng(0).choice(len(pairs), 300, replace=False)
+            pairs = [pairs[i] for i in pick]
+        best, keep = -1.0, np.ones(n, dtype=bool)
+        for i, j in pairs:
+            if abs(v[i] - v[j]) < 1e-6:
+                continue
+            a = (h[i] - h[j]) / (v[i] - v[j])
+            if a <= 0:
+                continue
+            expected = a * (v - v[i]) + h[i]
+            ok = expected > 1.0
+            resid = np.where(ok, np.abs(np.log(h / np.maximum(expected, 1.0))), np.inf)
+            inliers = resid < INLIER
+            score = inliers.sum() - 0.01 * float(np.sum(np.minimum(resid[inliers], INLIER)))
+            if score > best:
+                best, keep = score, inliers
+        if keep.sum() < MIN_PEOPLE:
+            return None
         a, b = np.polyfit(v[keep], h[keep], 1)
         if a <= 0:
             return None  # heights that shrink toward the camera: not people on one ground plane
@@ -148,8 +166,8 @@ def gate_boxes(
 
     ``frame_size``: (width, height); ``camera``: a CameraPose (trustnav.geometry) when known;
     ``fit``: the horizon fit to judge by and to add the kept boxes to (None: this frame's boxes
-    only). The boxes are judged against a fit that includes them, so one tall outlier among three
-    cannot move the horizon onto itself by much: the fit drops its worst third before judging."""
+    only). The boxes are judged against a fit that includes them: the fit is the line most of the
+    people agree with, so a logo or a box in the sky among them does not move it."""
     config = config or GateConfig()
     _, h = frame_size
     keep: list[int] = []
