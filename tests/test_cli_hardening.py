@@ -209,7 +209,7 @@ def test_interrupt_keeps_the_records_written_so_far(tmp_path, scripted, capsys):
 def test_sigint_to_a_real_run_keeps_csv_and_json(sequences, looking_weights, out_dir):
     out = out_dir
     cmd = [sys.executable, "-m", "trustnav.cli", "estimate", str(sequences / "walk_a"), "--out", str(out),
-           "--no-images", "--scan-frames", "4"]  # fmt: skip
+           "--no-images"]  # fmt: skip
     proc = subprocess.Popen(
         cmd,
         stdout=subprocess.PIPE,

@@ -183,15 +183,13 @@ class PersonDetector:
 
     def windows(self, h: int, w: int) -> list[tuple[int, int, int, int]]:
         """Where the network looks: the whole frame, and where that shrinks the frame below
-        ``tile_below`` (a 1280 x 720 frame to 0.33), also square windows of the shorter side across
-        the longer one (overlapping by at least a fifth), so that people of ~100 px keep ~40 px."""
+        ``tile_below`` (a 1280 x 720 frame to 0.33), also square windows as tall as a landscape frame
+        across its width (overlapping by at least a fifth), so that people of ~100 px keep ~40 px."""
         out = [(0, 0, w, h)]
-        if self.input_size / max(h, w) >= self.tile_below:
-            return out
-        side = min(h, w)
-        n = math.ceil((max(h, w) - side) / (0.8 * side)) + 1
-        for start in np.linspace(0, max(h, w) - side, n).round().astype(int):
-            out.append((int(start), 0, int(start) + side, h) if w >= h else (0, int(start), w, int(start) + side))
+        if self.input_size / max(h, w) >= self.tile_below or w <= h:
+            return out  # a portrait frame is not cut across: its windows would halve a standing person
+        n = math.ceil((w - h) / (0.8 * h)) + 1
+        out += [(int(x), 0, int(x) + h, h) for x in np.linspace(0, w - h, n).round().astype(int)]
         return out
 
     def __call__(self, frame: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -130,14 +130,16 @@ def image_runs(images: list[Path]) -> list[list[Path]]:
     every k-th), and of one size, are one sequence; every other image is a sequence of its own (street
     photos are not a video: track IDs and trust must not carry from one photo to the next).
     ``plan_sequences(..., one_sequence=True)`` (``--one-sequence``) joins them anyway."""
-    groups: dict[tuple[str, tuple[int, int] | None], list[Path]] = {}
+    groups: dict[str, list[Path]] = {}
     for f in images:  # the name's pattern: its digit runs masked
-        groups.setdefault((_DIGITS.sub("#", f.name.lower()), _image_size(f)), []).append(f)
+        groups.setdefault(_DIGITS.sub("#", f.name.lower()), []).append(f)
     runs: list[list[Path]] = []
-    for (pattern, size), members in groups.items():
+    for pattern, members in groups.items():
         numbers = [[int(d) for d in _DIGITS.findall(f.name)] for f in members]
         varying = [k for k in range(pattern.count("#")) if len({n[k] for n in numbers}) > 1]
-        if size is not None and len(members) > 1 and len(varying) == 1:
+        # one size (a file that cannot be read is reported, and skipped, when its frame is read)
+        sizes = {size for f in members if (size := _image_size(f)) is not None} if len(members) > 1 else set()
+        if len(sizes) == 1 and len(varying) == 1:
             ordered = sorted(zip((n[varying[0]] for n in numbers), members, strict=True))
             steps = {b[0] - a[0] for a, b in itertools.pairwise(ordered)}
             if len(steps) == 1 and steps.pop() > 0:
