@@ -16,7 +16,7 @@ YOLOX-Nano proposer), split over time instead of run in full on every frame:
   (``extra["predicted"]``: no measurement on this frame);
 - the **geometry gate** (:mod:`~trustnav.perception.ground_gate`) on new people, the horizon fitted
   over the stream's people; boxes the landmark model did not confirm are not tried again for
-  ``landmark_every`` frames where they stay.
+  2 x ``landmark_every`` frames where they stay, boxes under ``min_height_px`` not at all.
 
 Every step is in the frame loop, so an episode is a pure function of its frames (no search thread,
 nothing load-dependent); the latency of a frame is one detection plus at most ``max_fits`` landmark
@@ -50,12 +50,16 @@ class RealtimeConfig:
     last fit (3 at 15 frames/s: traits refreshed 5 times a second); max_fits: landmark fits per frame
     at most for followed people (new boxes are always fitted); carry_frames: frames a followed person
     the detector does not box is carried by its velocity; search_frames: None (default) detects on
-    every frame, an integer k on one frame in k (the others carry every person by its velocity)."""
+    every frame, an integer k on one frame in k (the others carry every person by its velocity);
+    min_height_px: boxes shorter than this are not fitted (a far crowd's 30-40 px people cost a landmark
+    fit each, and the landmark model rarely confirms them); a box the landmark model did not confirm
+    is not tried again for 2 x ``landmark_every`` frames where it stays."""
 
     landmark_every: int = 3
     max_fits: int = 3
     carry_frames: int = 4
     search_frames: int | None = None
+    min_height_px: float = 40.0
 
     def __post_init__(self) -> None:
         if self.search_frames is not None and (
@@ -66,6 +70,8 @@ class RealtimeConfig:
             raise ValueError(f"landmark_every must be an integer in [1, 10], got {self.landmark_every!r}")
         if not isinstance(self.max_fits, int) or not 0 <= self.max_fits <= 20:
             raise ValueError(f"max_fits must be an integer in [0, 20], got {self.max_fits!r}")
+        if not 0.0 <= self.min_height_px <= 1000.0:
+            raise ValueError(f"min_height_px must be in [0, 1000], got {self.min_height_px!r}")
         if not isinstance(self.carry_frames, int) or not 0 <= self.carry_frames <= 100:
             raise ValueError(f"carry_frames must be an integer in [0, 100], got {self.carry_frames!r}")
 
@@ -171,8 +177,12 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             centre = _centre(boxes[j]) - _centre(f.box) + f.velocity
             f.velocity = 0.5 * f.velocity + 0.5 * _capped(centre, boxes[j])
             f.box, f.seen_at = boxes[j].astype(np.float64), index
-        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < cfg.landmark_every]
-        new = [j for j in new if not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)]
+        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < 2 * cfg.landmark_every]
+        new = [
+            j for j in new
+            if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
+            and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
+        ]  # fmt: skip
         # new boxes, the largest (nearest) first, in what is left of the frame's fits (at least one)
         new.sort(key=lambda j: boxes[j][1] - boxes[j][3])
         new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
