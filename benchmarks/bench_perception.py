@@ -53,10 +53,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # trust_eval, beside t
 
 
 def run(
-    name: str, paths: list[Path], video: bool, scan_frames: int, workers: int, model: LookingModel, body: bool = True
+    name: str,
+    paths: list[Path],
+    video: bool,
+    scan_frames: int,
+    workers: int,
+    model: LookingModel,
+    body: bool = True,
+    proposer: str = "detector",
 ) -> dict:
     frames = [f.frame for f in iter_frames(paths) if f.frame is not None]
-    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, body_search=body)
+    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, body_search=body, proposer=proposer)
     backend = MediaPipePoseBackend(config, video=video)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=10.0), model)
     pipeline(frames[0])  # warm-up (graph start-up), then start again
@@ -77,6 +84,7 @@ def run(
     h, w = frames[0].shape[:2]
     return {
         "input": name,
+        "proposer": proposer,
         "size": f"{w}x{h}",
         "mode": "video" if video else "still",
         "scan_frames": scan_frames,
@@ -315,6 +323,9 @@ def main() -> None:
                     help="--realtime: also the offline row with the proposers before issue 35 (BlazePose tiles, "
                     "segmentation, HOG), in the same run")  # fmt: skip
     ap.add_argument("--repeat", type=int, default=1, help="--realtime: streamed runs (the spread of the timings)")
+    ap.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
+                    help="who proposes people (MediaPipeConfig.proposer); --scan-frames and --body-search "
+                    "apply to blazepose only")  # fmt: skip
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
@@ -331,18 +342,22 @@ def main() -> None:
         realtime_main(args, model)
         return
     rows = []
-    bodies = BODY_SEARCH[args.body_search]
-    for scan, body in itertools.product(args.scan_frames, bodies):
+    if args.proposer == "detector":  # the scan and body-search settings belong to the tiled search
+        settings = [(1, True)]
+    else:
+        settings = list(itertools.product(args.scan_frames, BODY_SEARCH[args.body_search]))
+    for scan, body in settings:
         for seq in ("walk_a", "phone_a"):
             paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))
-            rows.append(run(seq, paths, True, scan, args.workers, model, body))
+            rows.append(run(seq, paths, True, scan, args.workers, model, body, args.proposer))
     if not args.skip_street:
         streets = sorted((SHARED / "data" / "street_images").glob("street_*.png"))
-        for body in bodies:
-            rows.append(run("street_*.png", streets, False, 1, args.workers, model, body))
-            rows.append(run("crossing.jpg", [SHARED / "data" / "street_images" / "crossing.jpg"] * 3, False, 1,
-                            args.workers, model, body))  # fmt: skip
-    cols = ["input", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame", "detection_ms",
+        stills = [True] if args.proposer == "detector" else BODY_SEARCH[args.body_search]
+        for body in stills:
+            rows.append(run("street_*.png", streets, False, 1, args.workers, model, body, args.proposer))
+            crossing = [SHARED / "data" / "street_images" / "crossing.jpg"] * 3
+            rows.append(run("crossing.jpg", crossing, False, 1, args.workers, model, body, args.proposer))
+    cols = ["input", "proposer", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame", "detection_ms",
             "landmarks_ms", "segmentation_ms", "body_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
