@@ -357,7 +357,8 @@ def main() -> None:
             rows.append(run("street_*.png", streets, False, 1, args.workers, model, body, args.proposer))
             crossing = [SHARED / "data" / "street_images" / "crossing.jpg"] * 3
             rows.append(run("crossing.jpg", crossing, False, 1, args.workers, model, body, args.proposer))
-    cols = ["input", "proposer", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame", "detection_ms",
+    cols = ["input", "proposer", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame",
+            "detection_ms",
             "landmarks_ms", "segmentation_ms", "body_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))

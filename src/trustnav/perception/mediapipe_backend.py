@@ -542,7 +542,7 @@ class MediaPipePoseBackend:
         self._frame_index = 0
         self.last_timing: dict[str, float] = {}
         self.detector: PersonDetector | None = None
-        if self.config.proposer == "detector":
+        if self.config.proposer == "detector":  # made now: a missing or bad model file fails here
             self.detector = PersonDetector(self.config.detector_model, min_score=self.config.detector_min_score)
         self.horizon = HorizonFit(GateConfig().window)
         #: what the latest frame's proposals came to: the geometry gate's rejections and the boxes the
@@ -611,7 +611,9 @@ class MediaPipePoseBackend:
         each stage kept the workers busy ("detection", "landmarks"), shared out over the workers.
         """
         frame = check_frame(frame)
-        if self.detector is not None:
+        if self.config.proposer == "detector":
+            if self.detector is None:  # a config replaced after construction
+                self.detector = PersonDetector(self.config.detector_model, min_score=self.config.detector_min_score)
             return self._detected(frame)
         search = sharpened(frame, self.config.sharpen, self.config.sharpen_sigma)  # for the detector only
         h, w = frame.shape[:2]
