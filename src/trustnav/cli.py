@@ -386,6 +386,12 @@ def _estimate(args: argparse.Namespace) -> int:
                          "(opencv-python-headless): write the annotated output with --mp4 instead")  # fmt: skip
     if args.realtime:
         args.perception = "realtime"
+    elif args.perception is None:  # live input runs in real time unless --perception offline is given
+        from trustnav.perception.live import is_live_source
+
+        live = any(is_live_source(str(i)) for i in args.inputs)
+        mediapipe = args.backend == "mediapipe" and args.proposer == "detector"
+        args.perception = "realtime" if live and mediapipe else "offline"
     if args.perception == "realtime" and (args.backend != "mediapipe" or args.proposer != "detector"):
         raise ValueError("--realtime runs on the mediapipe backend with the detector as proposer")
     legacy = args.sharpen or args.scan_frames != 1 or args.no_body_search
@@ -1082,9 +1088,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the YOLOX-Nano ONNX file (default: ../shared/models/yolox/ of a checkout, "
                    "$TRUSTNAV_YOLOX_MODEL, the user cache, else downloaded once; a FILE given is never "
                    "downloaded)")  # fmt: skip
-    e.add_argument("--perception", choices=["offline", "realtime"], default="offline",
-                   help="offline (default): every box of every frame fitted; realtime (= --realtime): the "
-                   "detector on every frame, landmarks staggered (docs/perception.md)")  # fmt: skip
+    e.add_argument("--perception", choices=["offline", "realtime"], default=None,
+                   help="offline (default for files): every box of every frame fitted; realtime (= --realtime, "
+                   "the default for live input): the detector on every frame, landmarks staggered "
+                   "(docs/perception.md)")  # fmt: skip
     e.add_argument(
         "--sharpen",
         type=float,

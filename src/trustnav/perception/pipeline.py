@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Container, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from numbers import Real
 from types import MappingProxyType
@@ -146,11 +146,14 @@ class PerceptionPipeline:
         return values
 
     @staticmethod
-    def observations(people: Iterable[TrackedPerson], time: float) -> list[Observation]:
+    def observations(
+        people: Iterable[TrackedPerson], time: float, known: Container[int] | None = None
+    ) -> list[Observation]:
         """One trust observation per tracked person (cues of `smato_score`, `eye_score` and any
         other trait; keypoints and box for `pose_conf`). A NaN cue is left out (missing). A person
         whose keypoints the real-time backend carried (``extra["carried"]``) was not judged on this
-        frame: no observation (the same evidence is not counted twice)."""
+        frame: no observation (the same evidence is not counted twice), unless its track is not
+        among ``known`` (the tracks trust already has; the tracker gave it a new ID)."""
         return [
             Observation(
                 track_id=tp.track_id,
@@ -162,7 +165,7 @@ class PerceptionPipeline:
                 cues={n: c for n, c in tp.cues.items() if not math.isnan(c)},
             )
             for tp in people
-            if not tp.person.extra.get("carried")
+            if not tp.person.extra.get("carried") or (known is not None and tp.track_id not in known)
         ]
 
 
@@ -228,7 +231,7 @@ def estimate(
                 # a person the real-time backend only carried by its velocity was not measured on
                 # this frame: reported, but no evidence for trust
                 measured = [tp for tp in result.people if not tp.person.extra.get("predicted")]
-                estimator.update(pipeline.observations(measured, t), time=t)
+                estimator.update(pipeline.observations(measured, t, known=estimator.tracks), time=t)
                 result.records = [_record(item.name, tp, estimator, sequence) for tp in result.people]
                 result.timing = dict(pipeline.last_timing)
             except Exception as exc:  # one bad frame never stops the sequence

@@ -90,14 +90,15 @@ def annotate(
     boxes, texts, sizes = [], [], []
     for rec, kp, label in zip(records, keypoints, phone_labels, strict=True):
         x1, y1, x2, y2 = (round(v) for v in rec["bbox"])
-        colour = trust_colour(rec["trust"])
+        trust = rec["trust"]  # None: a person carried under a new track ID, no trust yet
+        colour = trust_colour(trust) if trust is not None else (160, 160, 160)
         eye = _eye_colour(rec["eye_contact"] if rec["eye_contact"] is not None else 0.0)
         for a, b in SKELETON:
             pa, pb = kp[a], kp[b]
             if np.isfinite(pa).all() and np.isfinite(pb).all():
                 cv2.line(img, (round(pa[0]), round(pa[1])), (round(pb[0]), round(pb[1])), eye, thick, cv2.LINE_AA)
         cv2.rectangle(img, (x1, y1), (x2, y2), colour, thick + 1)
-        text = f"{rec.get('name', rec['track_id'])} {rec['trust']:.2f} {label}"
+        text = f"{rec.get('name', rec['track_id'])} {'-' if trust is None else f'{trust:.2f}'} {label}"
         (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
         chip = th + base + 3 if rec.get("colour") is not None else 0
         boxes.append((x1, y1, x2, y2))
