@@ -7,11 +7,9 @@ YOLOX-Nano proposer), split over time instead of run in full on every frame:
 - **detection** on every frame (``RealtimeConfig.search_frames`` = k: one frame in k), one
   onnxruntime thread, ~25-30 ms at 640x480: every person's box is measured on that frame;
 - **landmarks** (the BlazePose landmark model that confirms a box and gives the keypoints the cues
-  read) on the two workers: new boxes on the frame they appear (they must be confirmed before they
-  are reported), the largest first, in what the frame's ``max_fits`` leave (at least one; all of
-  them on a stream's first frame), and each followed person again once ``landmark_every`` frames have
-  passed since its last fit, the most overdue first, at most ``max_fits`` a frame, while the detector
-  runs; the others are **carried**: the detector's
+  read) on the two workers: every new box at once (it must be confirmed before it is reported), and
+  each followed person again once ``landmark_every`` frames have passed since its last fit, the
+  most overdue first, at most ``max_fits`` fits a frame; the others are **carried**: the detector's
   box of this frame with the keypoints of the last fit moved and scaled onto it
   (``extra["carried"]``: their cues are those of the last fit). A followed person the detector does
   not box on a frame is carried by its velocity for up to ``carry_frames`` frames
@@ -185,11 +183,9 @@ class RealtimePoseBackend(MediaPipePoseBackend):
             if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
             and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
         ]  # fmt: skip
-        # new boxes, the largest (nearest) first, in what is left of the frame's fits (at least one);
-        # all of them on a stream's first frame, which starts with everybody in view
+        # new boxes, the largest (nearest) first, in what is left of the frame's fits (at least one)
         new.sort(key=lambda j: boxes[j][1] - boxes[j][3])
-        if index > 0:
-            new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
+        new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
         jobs = [("new", j, self._regions(boxes[j], []), float(scores[j]), boxes[j]) for j in new]
         results = self._map(lambda g, job: self._confirm(g, frame, job[2], job[3], job[4], w, h), jobs)
         for i, fut in zip(due, pending, strict=True):
