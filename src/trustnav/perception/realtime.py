@@ -7,9 +7,10 @@ YOLOX-Nano proposer), split over time instead of run in full on every frame:
 - **detection** on every frame (``RealtimeConfig.search_frames`` = k: one frame in k), one
   onnxruntime thread, ~25-30 ms at 640x480: every person's box is measured on that frame;
 - **landmarks** (the BlazePose landmark model that confirms a box and gives the keypoints the cues
-  read) on the two workers: every new box at once (it must be confirmed before it is reported), and
-  each followed person again once ``landmark_every`` frames have passed since its last fit, the
-  most overdue first, at most ``max_fits`` fits a frame; the others are **carried**: the detector's
+  read) on the two workers: new boxes on the frame they appear (they must be confirmed before they
+  are reported), the largest first, in what the frame's ``max_fits`` leave (at least one), and each
+  followed person again once ``landmark_every`` frames have passed since its last fit, the most
+  overdue first, at most ``max_fits`` a frame, while the detector runs; the others are **carried**: the detector's
   box of this frame with the keypoints of the last fit moved and scaled onto it
   (``extra["carried"]``: their cues are those of the last fit). A followed person the detector does
   not box on a frame is carried by its velocity for up to ``carry_frames`` frames
