@@ -184,3 +184,50 @@ def test_with_the_camera_known_heights_follow_the_feet_row():
     keep, rejected = gate_boxes([real, small, sky], [0.9] * 3, (640, 480), camera=cam)
     assert keep == [0] and len(rejected) == 2
     assert "camera" in rejected[0].reason and "horizon" in rejected[1].reason
+
+
+# -- carried people in the pipeline ---------------------------------------------------------------
+
+
+def test_people_carried_between_fits_are_not_judged_twice():
+    """Issue 35's real-time backend carries a person's last keypoints between landmark fits
+    (``extra["carried"]``): the cues run only on people fitted on the frame, a carried person shows
+    its track's last values, and trust gets no observation of it unless its track is new to it."""
+    from trustnav.perception.pipeline import PerceptionPipeline
+    from trustnav.perception.tracking import PersonTracker
+    from trustnav.perception.types import Person
+
+    kp = np.column_stack([np.linspace(110, 130, 17), np.linspace(110, 290, 17)])
+
+    def person(dx: float, carried: bool) -> Person:
+        extra = {"carried": True} if carried else {}
+        return Person(np.array([100 + dx, 100, 140 + dx, 300]), kp + [dx, 0], np.ones(17), 0.9, extra)
+
+    class Backend:
+        def __init__(self) -> None:
+            self.frames = [[person(0, False)], [person(2, True)], [person(4, True)], [person(6, False)]]
+
+        def __call__(self, frame):
+            return self.frames.pop(0)
+
+    class Counting:
+        name = "eye_contact"
+
+        def __init__(self) -> None:
+            self.judged = 0
+
+        def __call__(self, frame, people):
+            self.judged += len(people)
+            return [0.1 * self.judged] * len(people)
+
+    cue = Counting()
+    pipeline = PerceptionPipeline(Backend(), PersonTracker(fps=10.0), cues=[cue])
+    frame = np.zeros((400, 400, 3), dtype=np.uint8)
+    outs = [pipeline(frame, time=k / 10) for k in range(4)]
+    assert cue.judged == 2  # frames 0 and 3 only
+    assert [round(o[0].eye_contact, 2) for o in outs] == [0.1, 0.1, 0.1, 0.2]  # carried: the last value
+    tid = outs[0][0].track_id
+    assert PerceptionPipeline.observations(outs[1], 0.1) == []
+    assert PerceptionPipeline.observations(outs[1], 0.1, known={tid}) == []
+    assert len(PerceptionPipeline.observations(outs[1], 0.1, known=set())) == 1  # a track new to trust
+    assert len(PerceptionPipeline.observations(outs[3], 0.3, known={tid})) == 1
