@@ -231,3 +231,20 @@ def test_people_carried_between_fits_are_not_judged_twice():
     assert PerceptionPipeline.observations(outs[1], 0.1, known={tid}) == []
     assert len(PerceptionPipeline.observations(outs[1], 0.1, known=set())) == 1  # a track new to trust
     assert len(PerceptionPipeline.observations(outs[3], 0.3, known={tid})) == 1
+
+
+@pytest.mark.slow
+@needs_model
+def test_estimate_reports_the_boxes_it_turned_down(sequences, looking_weights, out_dir, capsys):
+    """trustnav estimate writes rejected.json: each detector box the landmark model did not confirm
+    or the geometry gate turned down, with its frame, box, score and reason, and counts them."""
+    import json
+
+    from trustnav.cli import main
+
+    args = ["estimate", str(sequences / "phone_a"), "--out", str(out_dir), "--no-images"]
+    assert main([*args, "--looking-weights", str(looking_weights)]) == 0
+    rejected = json.loads((out_dir / "rejected.json").read_text())
+    assert rejected and all({"sequence", "frame", "bbox", "score", "reason"} <= set(r) for r in rejected)
+    assert all(r["reason"] and len(r["bbox"]) == 4 and 0 < r["score"] <= 1 for r in rejected)
+    assert f"{len(rejected)} detector boxes rejected" in capsys.readouterr().out
