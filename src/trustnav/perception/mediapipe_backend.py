@@ -189,6 +189,12 @@ class MediaPipeConfig:
     small) through person segmentation (:mod:`trustnav.perception.segment_search`): square tiles of
     ``segment_tile`` x the shorter side; in video mode the tiles are shared out over
     ``segment_frames`` consecutive frames (a person found is followed from its landmarks after).
+    proposer: who proposes people: "detector" (default, issue 35: YOLOX-Nano,
+    :mod:`~trustnav.perception.detector`, from ``detector_model`` or the default places, boxes scored
+    >= ``detector_min_score``; each box fitted on a square of ``region_scale`` x its larger side, then
+    the geometry gate, ``geometry_gate``, :mod:`~trustnav.perception.ground_gate`) or "blazepose" (the
+    tiles, segmentation and HOG searches below, before issue 35; the tile, scan, sharpen, segment and
+    body settings apply to it only).
     body_search: also look for them by the shape of their body, with OpenCV's HOG people detector
     (:mod:`trustnav.perception.body_search`; it survives video compression, which the detector's
     face cue does not); in video mode on one frame in ``body_frames`` (or in ``scan_frames``, if more).
