@@ -1,5 +1,11 @@
 """Default pose backend: MediaPipe BlazePose (pinned ``mediapipe==0.10.14``), many people per frame, offline.
 
+Since issue 35 people are proposed by the learned person detector (``MediaPipeConfig.proposer =
+"detector"``, :mod:`~trustnav.perception.detector`): each box is fitted by the landmark model below,
+which confirms it and gives its keypoints, then one box per person and the geometry gate
+(:mod:`~trustnav.perception.ground_gate`; rejections in ``last_rejections``). The proposers before it,
+described next, are ``proposer="blazepose"``.
+
 MediaPipe's legacy Pose solution follows one person. Here its two stages run as separate graphs
 built from the calculators that ship in the wheel (no model download, no jax):
 
