@@ -10,32 +10,24 @@ search over N frames of a video (people already found are followed from their la
     python benchmarks/bench_perception.py --json out.json
     python benchmarks/bench_perception.py --realtime --json rt.json   # issue 20: reference vs real time
 
-``--realtime`` measures, per input and in the same run, the offline **reference** (every frame
-through the full pipeline, as ``trustnav estimate`` does) and the **realtime** mode
-(:class:`~trustnav.perception.realtime.RealtimePoseBackend` behind a
-:class:`~trustnav.perception.streaming.StreamingPerceiver`, frames handed over at the stream's
-rate ``--stream-fps``, the newest frame taken, older ones dropped; or, per ``--max-latency`` S, frames
-waiting while younger than S seconds). Rows (``--json``): ``name``, ``max_latency_s`` (0: newest only),
-``mode`` (reference | realtime), ``fps`` (frames processed per second of wall time; for the
-realtime mode also ``throughput_fps``, frames per second when handed over as fast as it takes
-them), ``recall_vs_reference`` (share of the reference's person-frames the realtime mode also
-reports, box IoU >= 0.5; a dropped frame reports nobody; ``recall_clear``: the same over the reference's
-people >= 80 px tall), ``first_detection_s`` (worst delay, in
-stream seconds, from a person's first reference detection to the realtime mode's, over the people
-the reference follows for >= 0.5 s and finds >= 0.5 s before the end; ``never_found`` of them the
-realtime mode never reports, counted to the end of the clip), ``traits_within_0_1``
-(share of the person-frames found by both whose eye contact and phone use agree within 0.1),
-``latency_ms_p95``, ``dropped`` and the load average during the run; the reference's row gives
-``traits_frame_to_frame``, the same agreement between a track's consecutive reference frames (how
-steady the per-frame values are to begin with) and ``reference_new_share``, the share of its
-person-frames whose track it did not report on the frame before (people it finds anew, which any
-search that hands over a frame or more later misses unless a carried box covers them); ``--search-seconds``
-adds in-step rows (the search in the frame loop, handed over after that much stream time; no frame
-dropped, nothing load-dependent), one per ``--landmark-every``; ``trust_traits_within_0_1`` and
-``trust_within_0_1``, the same agreement for the eye-contact and smartphone trait values and the
-trust that a seconds-based ``TrustEstimator`` fed frame by frame gives each track (what the
-controller uses). The inputs: walk_a (640x480)
-and walk_a enlarged to 1280x720 (a dash-cam-sized stand-in: the shared data have no 1280x720 clip).
+``--realtime`` (issue 35) streams walk_a (640x480, 45 frames) at ``--stream-fps`` (15) and prints one
+row per mode, also as JSON (``--json F``): ``name``, ``mode`` (``offline``: every frame through the
+offline pipeline, as ``trustnav estimate``; ``realtime``: the real-time backend behind a
+:class:`~trustnav.perception.streaming.StreamingPerceiver` fed at the camera's clock, newest frame
+first), ``fps`` (frames processed per second of wall time), ``throughput_fps`` (real time: frames per
+second when handed over as fast as it takes them), ``stream_fps``, ``dropped`` (share of the frames
+not processed), ``latency_ms_p95`` (capture to that frame's people and tracks), ``recall_labelled``
+(share of walk_a's labelled people >= 80 px tall found, IoU >= 0.5, on the labelled frames, a dropped
+frame finding nobody), ``false_boxes`` and ``duplicates`` there (the labelled evaluation's rules),
+``first_detection_s`` (worst delay, in stream seconds, from the offline run's first box of a person
+>= 80 px to the real-time run's, over people followed >= 0.5 s; one never found counts to the end),
+``recall_vs_offline``, ``traits_hz_median`` (median over tracks followed >= 1 s of the rate at which
+the track's traits were judged afresh, not carried) and ``load`` (1-minute load average during the
+run). ``--baseline`` adds the offline row of the proposers before issue 35 (BlazePose's tiles, the
+segmentation and HOG searches) in the same run, so speeds compare as ratios; ``--repeat N`` streams
+N times. ``recall_every_frame``, ``first_detection_every_frame_s`` and ``traits_hz_every_frame`` are
+the same figures for the real-time backend handed every frame (the throughput pass, nothing dropped):
+what the design gives where the machine keeps up.
 """
 
 from __future__ import annotations
@@ -45,6 +37,7 @@ import itertools
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -58,13 +51,21 @@ from trustnav.perception.tracking import PersonTracker
 from trustnav.trust import SECONDS_TRUST, TrustEstimator
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # trust_eval, beside this file
 
 
 def run(
-    name: str, paths: list[Path], video: bool, scan_frames: int, workers: int, model: LookingModel, body: bool = True
+    name: str,
+    paths: list[Path],
+    video: bool,
+    scan_frames: int,
+    workers: int,
+    model: LookingModel,
+    body: bool = True,
+    proposer: str = "detector",
 ) -> dict:
     frames = [f.frame for f in iter_frames(paths) if f.frame is not None]
-    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, body_search=body)
+    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, body_search=body, proposer=proposer)
     backend = MediaPipePoseBackend(config, video=video)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=10.0), model)
     pipeline(frames[0])  # warm-up (graph start-up), then start again
@@ -85,6 +86,7 @@ def run(
     h, w = frames[0].shape[:2]
     return {
         "input": name,
+        "proposer": proposer,
         "size": f"{w}x{h}",
         "mode": "video" if video else "still",
         "scan_frames": scan_frames,
@@ -107,17 +109,27 @@ def _people(out: list, estimator: TrustEstimator | None = None, t: float = 0.0) 
         traits = {i: (st.eye, st.smartphone, st.trust) for i, st in tracks.items()}
     nan3 = (math.nan, math.nan, math.nan)
     return [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone,
+             "carried": bool(tp.person.extra.get("carried")),
              **dict(zip(("eye_trait", "phone_trait", "trust"), traits.get(tp.track_id, nan3), strict=True))}
             for tp in out]  # fmt: skip
 
 
-def run_reference(frames: list, fps: float, model: LookingModel, body: bool = True) -> tuple[list[list[dict]], float]:
-    """Every frame through the offline pipeline; per frame its people, and the frames per second."""
-    backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body), video=True)
+def run_reference(
+    frames: list, fps: float, model: LookingModel, body: bool = True, proposer: str = "detector", realtime: bool = False
+) -> tuple[list[list[dict]], float]:
+    """Every frame through the offline pipeline (``proposer``; or, ``realtime``, the real-time backend
+    handed the frames as fast as it takes them: its throughput); per frame its people, and the
+    frames per second."""
+    if realtime:
+        from trustnav.perception.realtime import RealtimePoseBackend
+
+        backend: MediaPipePoseBackend = RealtimePoseBackend()
+    else:
+        backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body, proposer=proposer), video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     pipeline(frames[0])  # warm-up, then start again
     backend.reset()
-    pipeline.tracker = PersonTracker(fps=fps)
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     t0 = time.perf_counter()
     trust = TrustEstimator(SECONDS_TRUST)
     out = [_people(pipeline(f, time=i / fps), trust, i / fps) for i, f in enumerate(frames)]
@@ -126,72 +138,21 @@ def run_reference(frames: list, fps: float, model: LookingModel, body: bool = Tr
     return out, len(frames) / seconds
 
 
-def run_realtime(
-    frames: list, fps: float, model: LookingModel, max_latency: float | None = None, body: bool = True
+def compare(
+    reference: list[list[dict]],
+    realtime: list[list[dict] | None],
+    fps: float,
+    settle_s: float = 0.5,
+    clear_only: bool = False,
 ) -> dict:
-    """The realtime mode: a throughput pass (frames handed over as fast as it takes them), then a
-    stream at ``fps`` through the StreamingPerceiver (newest frame first, drops counted)."""
-    from trustnav.perception.realtime import RealtimePoseBackend
-    from trustnav.perception.streaming import StreamingPerceiver
-
-    backend = RealtimePoseBackend(MediaPipeConfig(body_search=body))
-    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
-    t0 = time.perf_counter()
-    for i, f in enumerate(frames):
-        pipeline(f, time=i / fps)
-    throughput = len(frames) / (time.perf_counter() - t0)
-    backend.reset()
-    pipeline.tracker = PersonTracker(fps=fps)
-    per_frame: list[list[dict] | None] = [None] * len(frames)
-    trust = TrustEstimator(SECONDS_TRUST)  # results arrive in capture order
-    with StreamingPerceiver(pipeline, mode="realtime", max_latency=max_latency) as stream:
-        start = time.perf_counter()
-        for i, f in enumerate(frames):
-            time.sleep(max(0.0, start + i / fps - time.perf_counter()))  # the camera's clock
-            stream.submit(f, i / fps)
-            for r in stream.poll():
-                per_frame[r.index] = _people(r.people, trust, r.capture_time)
-        results = stream.drain(timeout=30.0)
-        for r in results:
-            per_frame[r.index] = _people(r.people, trust, r.capture_time)
-        wall = time.perf_counter() - start
-        stats = stream.stats
-    backend.close()
-    processed = sum(p is not None for p in per_frame)
-    return {"per_frame": per_frame, "fps": processed / wall, "throughput_fps": throughput,
-            "latency_ms_p95": 1e3 * stats["latency_p95_s"], "dropped": stats["dropped"],
-            "searches": backend.stats["searches"], "search_mean_s": backend.stats["search_mean_s"]}  # fmt: skip
-
-
-def run_in_step(
-    frames: list, fps: float, model: LookingModel, search_seconds: float, body: bool = True, landmark_every: int = 2
-) -> dict:
-    """The real-time design with its search in step with the frames (``RealtimeConfig.search_frames``):
-    every frame processed, the search's findings handed over ``search_seconds`` of stream time after
-    the frame it searched, each followed person fitted on one frame in ``landmark_every``. What it
-    misses against the reference is the design's (search latency, following, carrying), not the
-    machine's: no frame is dropped and nothing depends on load."""
-    from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend, modelled_search_frames
-
-    k = modelled_search_frames(fps, search_seconds)
-    realtime = RealtimeConfig(search_frames=k, landmark_every=landmark_every)
-    backend = RealtimePoseBackend(MediaPipeConfig(body_search=body), realtime=realtime)
-    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
-    trust = TrustEstimator(SECONDS_TRUST)
-    t0 = time.perf_counter()
-    per_frame = [_people(pipeline(f, time=i / fps), trust, i / fps) for i, f in enumerate(frames)]
-    wall = time.perf_counter() - t0
-    backend.close()
-    return {"per_frame": per_frame, "compute_fps": len(frames) / wall, "search_frames": k}
-
-
-def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps: float, settle_s: float = 0.5) -> dict:
     """recall_vs_reference, first_detection_s and traits_within_0_1 (see the module docstring).
 
     first_detection_s counts the people the reference follows for at least ``settle_s`` and finds
     at least ``settle_s`` before the clip ends (a box the reference shows for a frame or two, or a
     person entering in the last frames, cannot be judged); one never found by the real-time mode
-    counts from its first detection to the end of the clip. ``first_detection_people`` says how many
+    counts from its first detection to the end of the clip; ``clear_only``: only people from the first
+    frame the reference shows them >= CLEAR_PX tall (the labelled evaluation's people; a far crowd's
+    30-60 px people are not counted). ``first_detection_people`` says how many
     were counted, ``never_found`` how many of those the real-time mode never reported."""
     from trustnav.perception.types import box_iou
 
@@ -204,8 +165,9 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
             total += 1
             is_clear = p["bbox"][3] - p["bbox"][1] >= CLEAR_PX
             clear += is_clear
-            first_ref.setdefault(p["id"], k)
-            frames_of[p["id"]] = frames_of.get(p["id"], 0) + 1
+            if is_clear or not clear_only:
+                first_ref.setdefault(p["id"], k)
+                frames_of[p["id"]] = frames_of.get(p["id"], 0) + 1
             best = max(rt or [], key=lambda q: box_iou(p["bbox"], q["bbox"]), default=None)
             if best is None or box_iou(p["bbox"], best["bbox"]) < 0.5:
                 continue
@@ -240,99 +202,138 @@ def compare(reference: list[list[dict]], realtime: list[list[dict] | None], fps:
 CLEAR_PX = 80.0
 
 
-def reference_new_share(reference: list[list[dict]]) -> float:
-    """Share of the reference's person-frames, after the first frame, whose track the reference did
-    not report on the frame before: people it finds anew (entering, or found again after a frame or
-    more without them). The reference detects on every frame; a design whose search hands its
-    findings over even one frame later can match these only with a box it carried, so this share
-    bounds how close to 1 its ``recall_vs_reference`` can come."""
-    new = total = 0
-    for prev, cur in itertools.pairwise(reference):
-        before = {p["id"] for p in prev}
-        total += len(cur)
-        new += sum(p["id"] not in before for p in cur)
-    return new / total if total else float("nan")
-
-
-def frame_to_frame_agreement(reference: list[list[dict]]) -> float:
-    """Share of a track's consecutive reference frames whose eye-contact and phone values agree
-    within 0.1: how steady the per-frame trait values are before any real-time shortcut (a bound
-    on how well two modes that fit a person on different frames or regions can agree)."""
-    agree = pairs = 0
-    for prev, cur in itertools.pairwise(reference):
-        before = {p["id"]: p for p in prev}
-        for p in cur:
-            q = before.get(p["id"])
-            if q is None or not all(np.isfinite([p["eye"], q["eye"], p["phone"], q["phone"]])):
-                continue
-            pairs += 1
-            agree += abs(p["eye"] - q["eye"]) <= 0.1 and abs(p["phone"] - q["phone"]) <= 0.1
-    return agree / pairs if pairs else float("nan")
-
-
 #: --body-search: the MediaPipeConfig.body_search settings measured.
 BODY_SEARCH = {"on": [True], "off": [False], "both": [False, True]}
 
 
-def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
-    import cv2
+def labelled_scores(per_frame: list[list[dict] | None], names: list[str]) -> dict:
+    """``recall_labelled`` (share of walk_a's labelled people >= CLEAR_PX tall found, IoU >= 0.5, on
+    the labelled frames; a dropped frame finds nobody) and ``false_boxes`` there, by the labelled
+    evaluation's own rules (benchmarks/trust_eval.py)."""
+    import trust_eval
 
-    walk = [f.frame for f in iter_frames(sorted((SHARED / "data" / "sequences" / "walk_a").glob("*.png")))]
-    big = [np.ascontiguousarray(cv2.resize(f, (1280, 960), interpolation=cv2.INTER_CUBIC)[120:840]) for f in walk]
+    labels = trust_eval.load_labels("walk_a")
+    for frame in labels["frames"].values():  # the people >= CLEAR_PX tall; the others are ignore regions
+        small = [p for p in frame["people"] if p["bbox"][3] - p["bbox"][1] < CLEAR_PX]
+        frame["people"] = [p for p in frame["people"] if p not in small]
+        frame["ignore"] = [*frame.get("ignore", []), *(p["bbox"] for p in small)]
+    records = [{"frame": names[k], "bbox": [float(v) for v in p["bbox"]], "track_id": p["id"]}
+               for k, people in enumerate(per_frame) for p in people or []]  # fmt: skip
+    r = trust_eval.evaluate(labels, records)
+    return {"recall_labelled": r["recall"], "labelled_people": r["people"], "false_boxes": r["false_boxes"],
+            "duplicates": r["duplicates"]}  # fmt: skip
+
+
+def traits_hz(per_frame: list[list[dict] | None], fps: float, min_s: float = 1.0) -> float:
+    """Median over tracks followed for >= ``min_s`` of the rate (per second of stream) at which the
+    track's traits were judged afresh (its keypoints fitted on that frame, not carried)."""
+    fresh: dict[int, int] = {}
+    span: dict[int, list[int]] = {}
+    for k, people in enumerate(per_frame):
+        for p in people or []:
+            span.setdefault(p["id"], [k, k])[1] = k
+            fresh[p["id"]] = fresh.get(p["id"], 0) + (not p.get("carried", False))
+    rates = [fresh[i] * fps / (b - a + 1) for i, (a, b) in span.items() if (b - a + 1) / fps >= min_s]
+    return float(np.median(rates)) if rates else float("nan")
+
+
+def run_stream(frames: list, fps: float, model: LookingModel, realtime: bool) -> dict:
+    """walk_a streamed at ``fps`` through the StreamingPerceiver (newest frame first, drops counted):
+    the real-time backend, or (``realtime`` False) the offline one, which cannot keep up."""
+    from trustnav.perception.realtime import RealtimePoseBackend
+    from trustnav.perception.streaming import StreamingPerceiver
+
+    backend = RealtimePoseBackend() if realtime else MediaPipePoseBackend(video=True)
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
+    pipeline(frames[0], time=0.0)  # warm-up (graph start-up), then start again
+    backend.reset()
+    pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
+    per_frame: list[list[dict] | None] = [None] * len(frames)
+
+    def keep(r) -> None:
+        per_frame[r.index] = [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone,
+                               "carried": bool(tp.person.extra.get("carried"))} for tp in r.people]  # fmt: skip
+
+    load0 = os.getloadavg()[0]
+    with StreamingPerceiver(pipeline, mode="realtime") as stream:
+        start = time.perf_counter()
+        for i, f in enumerate(frames):
+            time.sleep(max(0.0, start + i / fps - time.perf_counter()))  # the camera's clock
+            stream.submit(f, i / fps)
+            for r in stream.poll():
+                keep(r)
+        for r in stream.drain(timeout=60.0):
+            keep(r)
+        wall = time.perf_counter() - start
+        stats = stream.stats
+    backend.close()
+    processed = sum(p is not None for p in per_frame)
+    return {"per_frame": per_frame, "fps": processed / wall, "latency_ms_p95": 1e3 * stats["latency_p95_s"],
+            "dropped": stats["dropped"] / len(frames), "load": round((load0 + os.getloadavg()[0]) / 2, 2)}  # fmt: skip
+
+
+def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
+    """Rows ``offline`` (every frame through the offline pipeline, as ``trustnav estimate``) and
+    ``realtime`` (walk_a streamed at ``--stream-fps`` into the real-time backend); both scored against
+    walk_a's labels; first detection against the offline rows' tracks."""
+    paths = sorted((SHARED / "data" / "sequences" / "walk_a").glob("*.png"))
+    walk = [f.frame for f in iter_frames(paths)]
+    names = [p.name for p in paths]
+    fps = args.stream_fps
     rows = []
-    bodies = BODY_SEARCH[args.body_search]
-    for (name, frames), body in itertools.product((("walk_a", walk), ("walk_a_1280x720", big)), bodies):
+    load0 = os.getloadavg()[0]
+    reference, ref_fps = run_reference(walk, fps, model, True)
+    load = round((load0 + os.getloadavg()[0]) / 2, 2)
+    rows.append({"name": "walk_a", "mode": "offline", "proposer": "detector", "fps": ref_fps,
+                 **labelled_scores(reference, names), "traits_hz_median": traits_hz(reference, fps),
+                 "load": load})  # fmt: skip
+    if args.baseline:  # the proposers before issue 35, in the same run: speeds as ratios
         load0 = os.getloadavg()[0]
-        reference, ref_fps = run_reference(frames, args.stream_fps, model, body)
-        size = f"{frames[0].shape[1]}x{frames[0].shape[0]}"
-        rows.append({"name": name, "size": size, "body_search": body, "mode": "reference", "fps": ref_fps,
-                     "traits_frame_to_frame": frame_to_frame_agreement(reference),
-                     "reference_new_share": reference_new_share(reference),
-                     "load_avg": round(load0, 2)})  # fmt: skip
-        for budget in args.max_latency:
-            load0 = os.getloadavg()[0]
-            rt = run_realtime(frames, args.stream_fps, model, budget or None, body)
-            load = round((load0 + os.getloadavg()[0]) / 2, 2)
-            rows.append({"name": name, "size": size, "body_search": body, "mode": "realtime", "max_latency_s": budget,
-                         "fps": rt["fps"],
-                         "throughput_fps": rt["throughput_fps"],
-                         **compare(reference, rt["per_frame"], args.stream_fps),
-                         "latency_ms_p95": rt["latency_ms_p95"], "dropped": rt["dropped"], "load_avg": load,
-                         "searches": rt["searches"], "search_mean_s": rt["search_mean_s"],
-                         "stream_fps": args.stream_fps})  # fmt: skip
-        for secs, every in itertools.product(args.search_seconds, args.landmark_every):
-            st = run_in_step(frames, args.stream_fps, model, secs, body, every)
-            rows.append({"name": name, "size": size, "body_search": body, "mode": "in-step", "search_s": secs,
-                         "landmark_every": every,
-                         "search_frames": st["search_frames"], "compute_fps": st["compute_fps"],
-                         **compare(reference, st["per_frame"], args.stream_fps),
-                         "stream_fps": args.stream_fps})  # fmt: skip
-    cols = ["name", "size", "body_search", "mode", "max_latency_s", "search_s", "landmark_every", "fps",
-            "throughput_fps", "compute_fps", "recall_vs_reference", "recall_clear", "reference_new_share",
-            "first_detection_s", "first_detection_people", "never_found", "traits_within_0_1",
-            "traits_frame_to_frame", "trust_traits_within_0_1", "trust_within_0_1", "latency_ms_p95", "dropped",
-            "load_avg"]  # fmt: skip
+        base, base_fps = run_reference(walk, fps, model, True, proposer="blazepose")
+        rows.append({"name": "walk_a", "mode": "offline", "proposer": "blazepose", "fps": base_fps,
+                     **labelled_scores(base, names), "traits_hz_median": traits_hz(base, fps),
+                     "load": round((load0 + os.getloadavg()[0]) / 2, 2)})  # fmt: skip
+    for _ in range(args.repeat):
+        load0 = os.getloadavg()[0]
+        every, throughput = run_reference(walk, fps, model, realtime=True)  # every frame, none dropped
+        design = labelled_scores(every, names)
+        first_every = compare(reference, every, fps, clear_only=True)["first_detection_s"]
+        load_tp = round((load0 + os.getloadavg()[0]) / 2, 2)
+        rt = run_stream(walk, fps, model, realtime=True)
+        cmp = compare(reference, rt["per_frame"], fps, clear_only=True)
+        rows.append({"name": "walk_a", "mode": "realtime", "stream_fps": fps, "fps": rt["fps"],
+                     "dropped": rt["dropped"], "latency_ms_p95": rt["latency_ms_p95"],
+                     **labelled_scores(rt["per_frame"], names),
+                     "first_detection_s": cmp["first_detection_s"], "recall_vs_offline": cmp["recall_vs_reference"],
+                     "traits_hz_median": traits_hz(rt["per_frame"], fps), "load": rt["load"],
+                     "throughput_fps": throughput, "load_throughput": load_tp,
+                     "recall_every_frame": design["recall_labelled"],
+                     "first_detection_every_frame_s": first_every,
+                     "traits_hz_every_frame": traits_hz(every, fps)})  # fmt: skip
+    cols = ["name", "mode", "proposer", "stream_fps", "fps", "throughput_fps", "dropped", "latency_ms_p95",
+            "recall_labelled", "labelled_people", "false_boxes", "duplicates", "first_detection_s",
+            "recall_vs_offline", "traits_hz_median", "load", "load_throughput", "recall_every_frame",
+            "first_detection_every_frame_s", "traits_hz_every_frame"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:
         cells = [r.get(c, "") for c in cols]
         print("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in cells) + " |")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=2))
+        Path(args.json).write_text(json.dumps(rows, indent=2, default=float))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
     ap.add_argument("--stream-fps", type=float, default=15.0, help="--realtime: the stream's frame rate")
-    ap.add_argument("--max-latency", type=float, nargs="+", default=[0.0, 0.3],
-                    help="--realtime: StreamingPerceiver latency budgets to run, s (0: newest frame only)")  # fmt: skip
-    ap.add_argument("--search-seconds", type=float, nargs="*", default=[],
-                    help="--realtime: also the real-time design in step with the frames, its search taking "
-                    "each of these stream seconds (rows in-step: no frame dropped, no load effect)")  # fmt: skip
-    ap.add_argument("--landmark-every", type=int, nargs="+", default=[2],
-                    help="--realtime: the in-step rows' RealtimeConfig.landmark_every, each (1: every person "
-                    "fitted on every frame)")  # fmt: skip
+    ap.add_argument("--baseline", action="store_true",
+                    help="--realtime: also the offline row with the proposers before issue 35 (BlazePose tiles, "
+                    "segmentation, HOG), in the same run")  # fmt: skip
+    ap.add_argument("--repeat", type=int, default=1, help="--realtime: streamed runs (the spread of the timings)")
+    ap.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
+                    help="who proposes people (MediaPipeConfig.proposer); --scan-frames and --body-search "
+                    "apply to blazepose only")  # fmt: skip
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
@@ -340,12 +341,8 @@ def main() -> None:
                     help="the HOG body-shape search (MediaPipeConfig.body_search): on, off or both")  # fmt: skip
     ap.add_argument("--json", help="write the rows to this file")
     args = ap.parse_args()
-    if any(not 0.0 <= b <= 10.0 for b in args.max_latency):
-        ap.error(f"--max-latency: seconds in [0, 10] (0: newest frame only), got {args.max_latency}")
-    if any(not 0.0 < b <= 10.0 for b in args.search_seconds):
-        ap.error(f"--search-seconds: seconds in (0, 10], got {args.search_seconds}")
-    if any(not 1 <= n <= 10 for n in args.landmark_every):
-        ap.error(f"--landmark-every: integers in [1, 10], got {args.landmark_every}")
+    if not 1 <= args.repeat <= 10:
+        ap.error(f"--repeat: an integer in [1, 10], got {args.repeat}")
     if not SHARED.is_dir():
         raise SystemExit(f"needs the shared data at {SHARED}")
     model = LookingModel.from_file()
@@ -353,18 +350,23 @@ def main() -> None:
         realtime_main(args, model)
         return
     rows = []
-    bodies = BODY_SEARCH[args.body_search]
-    for scan, body in itertools.product(args.scan_frames, bodies):
+    if args.proposer == "detector":  # the scan and body-search settings belong to the tiled search
+        settings = [(1, True)]
+    else:
+        settings = list(itertools.product(args.scan_frames, BODY_SEARCH[args.body_search]))
+    for scan, body in settings:
         for seq in ("walk_a", "phone_a"):
             paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))
-            rows.append(run(seq, paths, True, scan, args.workers, model, body))
+            rows.append(run(seq, paths, True, scan, args.workers, model, body, args.proposer))
     if not args.skip_street:
         streets = sorted((SHARED / "data" / "street_images").glob("street_*.png"))
-        for body in bodies:
-            rows.append(run("street_*.png", streets, False, 1, args.workers, model, body))
-            rows.append(run("crossing.jpg", [SHARED / "data" / "street_images" / "crossing.jpg"] * 3, False, 1,
-                            args.workers, model, body))  # fmt: skip
-    cols = ["input", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame", "detection_ms",
+        stills = [True] if args.proposer == "detector" else BODY_SEARCH[args.body_search]
+        for body in stills:
+            rows.append(run("street_*.png", streets, False, 1, args.workers, model, body, args.proposer))
+            crossing = [SHARED / "data" / "street_images" / "crossing.jpg"] * 3
+            rows.append(run("crossing.jpg", crossing, False, 1, args.workers, model, body, args.proposer))
+    cols = ["input", "proposer", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame",
+            "detection_ms",
             "landmarks_ms", "segmentation_ms", "body_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))

@@ -96,9 +96,10 @@ def test_a_man_seen_from_behind_is_found_by_his_body(mediapipe_backend, sequence
     face-based detector nor segmentation finds; the body-shape search does."""
     frame = read_rgb(sequences / "walk_a" / "image_00005344_0.png")
     man = np.array([290.0, 173.0, 319.0, 250.0])
-    monkeypatch.setattr(mediapipe_backend, "config", replace(mediapipe_backend.config, body_search=False))
+    legacy = replace(mediapipe_backend.config, proposer="blazepose")  # the search before issue 35
+    monkeypatch.setattr(mediapipe_backend, "config", replace(legacy, body_search=False))
     assert all(box_iou(p.bbox, man) < 0.3 for p in mediapipe_backend(frame))
-    monkeypatch.setattr(mediapipe_backend, "config", replace(mediapipe_backend.config, body_search=True))
+    monkeypatch.setattr(mediapipe_backend, "config", replace(legacy, body_search=True))
     found = [p for p in mediapipe_backend(frame) if box_iou(p.bbox, man) >= 0.5]
     assert len(found) == 1 and found[0].extra.get("body")
 
@@ -133,7 +134,7 @@ def test_estimate_refuses_no_body_search_on_other_backends(tmp_path, capsys):
     from trustnav.cli import main
 
     code = main(["estimate", str(tmp_path), "--out", str(tmp_path / "o"), "--no-body-search", "--backend", "yolo"])
-    assert code == 2 and "--no-body-search apply to the mediapipe backend only" in capsys.readouterr().err
+    assert code == 2 and "--no-body-search apply to --proposer blazepose" in capsys.readouterr().err
 
 
 def test_a_search_leaves_opencvs_thread_setting_as_it_was():

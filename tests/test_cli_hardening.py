@@ -118,17 +118,40 @@ def test_inputs_are_planned_as_separate_sequences_with_unique_labels(tmp_path):
     (tmp_path / "seq").mkdir()
     a = _image(tmp_path / "a" / "crossing.jpg")
     b = _image(tmp_path / "b" / "crossing.jpg")
-    for k in (10, 2, 1):
+    for k in (10, 9, 8):
         _image(tmp_path / "seq" / f"f{k}.png")
     clip = _video(tmp_path / "seq" / "clip.mp4")
     seqs = plan_sequences([a, b, tmp_path / "seq"])
     assert [(s.kind, len(s.files)) for s in seqs] == [("image", 1), ("image", 1), ("folder", 3), ("video", 1)]
-    assert [f.name for f in seqs[2].files] == ["f1.png", "f2.png", "f10.png"]
+    assert [f.name for f in seqs[2].files] == ["f8.png", "f9.png", "f10.png"]  # natural order
     assert seqs[3].files == (clip,)
     labels = [s.label for s in seqs]
     assert len(set(labels)) == 4 and labels[:2] == ["a-crossing.jpg", "b-crossing.jpg"]
     joined = plan_sequences([a, b], one_sequence=True)
     assert len(joined) == 1 and joined[0].files == (a, b)
+
+
+def test_a_folder_of_photos_is_not_a_video(tmp_path):
+    """Issue 35: images of different sizes, or not numbered at an even step, are sequences of their
+    own (track IDs and trust do not carry from one photo to the next); --one-sequence joins them."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("street_1.png", "street_2.png", "street_4.png"):  # numbered, but 1, 2, 4: not frames
+        _image(photos / name)
+    _image(photos / "crossing.jpg", size=(80, 60))  # no number, another size
+    _image(photos / "frame_1.png", size=(80, 60))  # numbered frames 1-3, each of another size
+    _image(photos / "frame_2.png", size=(64, 48))
+    _image(photos / "frame_3.png", size=(72, 54))
+    seqs = plan_sequences([photos])
+    assert [(s.kind, len(s.files)) for s in seqs] == [("image", 1)] * 7
+    assert len({s.label for s in seqs}) == 7
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for k in range(0, 50, 5):  # every 5th frame of a clip: one sequence, in frame order
+        _image(clip / f"image_{k:08d}_0.png")
+    (seq,) = plan_sequences([clip])
+    assert seq.kind == "folder" and [f.name for f in seq.files][:2] == ["image_00000000_0.png", "image_00000005_0.png"]
+    assert len(plan_sequences([photos], one_sequence=True)) == 1
 
 
 def test_two_photos_do_not_share_tracks_or_trust_unless_asked(tmp_path, scripted, capsys):
@@ -188,7 +211,7 @@ def test_interrupt_keeps_the_records_written_so_far(tmp_path, scripted, capsys):
 def test_sigint_to_a_real_run_keeps_csv_and_json(sequences, looking_weights, out_dir):
     out = out_dir
     cmd = [sys.executable, "-m", "trustnav.cli", "estimate", str(sequences / "walk_a"), "--out", str(out),
-           "--no-images", "--scan-frames", "4"]  # fmt: skip
+           "--no-images"]  # fmt: skip
     proc = subprocess.Popen(
         cmd,
         stdout=subprocess.PIPE,

@@ -187,10 +187,10 @@ def test_a_lost_followed_person_is_refitted_only_as_one_clear_person(monkeypatch
 
 
 @pytest.mark.slow
-def test_a_followed_person_is_kept_through_video_compression(sequences, tmp_path, monkeypatch):
-    """walk_a's first 12 frames through OpenCV's mp4v (as trust_eval.py --mp4): in frame 11 the
-    landmark model finds no body in the region the hooded man (x 441-477, 113 px) left, and he is
-    lost; a slightly larger region shifted up (FOLLOW_TRIES) keeps him."""
+def test_a_followed_person_is_kept_through_video_compression(sequences, tmp_path):
+    """walk_a's first 12 frames through OpenCV's mp4v (as trust_eval.py --mp4): in frame 11 the hooded
+    man (x 441-477, 113 px), whom BlazePose's face detector and its follower lost on the compressed
+    frame before issue 35, is boxed by the learned detector and confirmed by the landmark model."""
     cv2 = pytest.importorskip("cv2")
     pytest.importorskip("mediapipe")
     from trustnav.perception import mediapipe_backend as mb
@@ -205,16 +205,10 @@ def test_a_followed_person_is_kept_through_video_compression(sequences, tmp_path
         frames.append(cv2.cvtColor(read[1], cv2.COLOR_BGR2RGB))
     assert len(frames) == 12
     man = np.array([441.0, 149.0, 477.0, 262.0])  # his box on the uncompressed frame
-
-    def last_frame(tries) -> list[Person]:
-        monkeypatch.setattr(mb, "FOLLOW_TRIES", tries)
-        with mb.MediaPipePoseBackend(video=True) as backend:
-            people = [backend(frame) for frame in frames][-1]
-        return [p for p in people if box_iou(p.bbox, man) >= 0.5]
-
-    kept = last_frame(mb.FOLLOW_TRIES)
-    assert len(kept) == 1 and kept[0].extra.get("refollowed")
-    assert last_frame(()) == []
+    with mb.MediaPipePoseBackend(video=True) as backend:
+        people = [backend(frame) for frame in frames][-1]
+    kept = [p for p in people if box_iou(p.bbox, man) >= 0.5]
+    assert len(kept) == 1 and kept[0].extra.get("detected")
 
 
 @pytest.mark.slow

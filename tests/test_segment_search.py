@@ -80,7 +80,8 @@ def test_segmentation_finds_the_pair_in_profile_that_the_detector_misses(sequenc
     pair = [np.array([507.0, 152.0, 543.0, 246.0]), np.array([544.0, 155.0, 580.0, 252.0])]
     found = {}
     for search in (False, True):
-        with MediaPipePoseBackend(MediaPipeConfig(segment_search=search, body_search=False)) as backend:
+        config = MediaPipeConfig(segment_search=search, body_search=False, proposer="blazepose")
+        with MediaPipePoseBackend(config) as backend:
             people = backend(frame)
         found[search] = [max((box_iou(b, p.bbox) for p in people), default=0.0) >= 0.5 for b in pair]
         if search:

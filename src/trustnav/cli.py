@@ -34,7 +34,7 @@ from trustnav.schema import Integer, Invalid, Number
 
 __all__ = ["BOUNDS", "OutputFolder", "main"]
 
-ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json")
+ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json", "rejected.json")
 SCENARIO_OUTPUTS = ("paper-*.png", "metrics.json")
 DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames", "metrics.json",
                  "attentive", "distracted")  # fmt: skip
@@ -382,13 +382,25 @@ def _estimate(args: argparse.Namespace) -> int:
     if args.show and not _gui_available():
         raise ValueError("--show needs an OpenCV that can open windows; this one is headless "
                          "(opencv-python-headless): write the annotated output with --mp4 instead")  # fmt: skip
-    if args.perception == "realtime" and (args.backend != "mediapipe" or args.scan_frames != 1):
-        raise ValueError("--perception realtime runs on the mediapipe backend and searches on its own thread "
-                         "(no --scan-frames)")  # fmt: skip
-    if args.backend != "mediapipe" and (args.sharpen or args.scan_frames != 1 or args.no_body_search):
-        raise ValueError(
-            f"--sharpen, --scan-frames and --no-body-search apply to the mediapipe backend only, not {args.backend}"
-        )
+    if args.realtime:
+        args.perception = "realtime"
+    elif args.perception is None:  # live input runs in real time unless --perception offline is given
+        from trustnav.perception.live import is_live_source
+
+        live = any(is_live_source(str(i)) for i in args.inputs)
+        mediapipe = args.backend == "mediapipe" and args.proposer == "detector"
+        args.perception = "realtime" if live and mediapipe else "offline"
+    if args.perception == "realtime" and (args.backend != "mediapipe" or args.proposer != "detector"):
+        raise ValueError("--realtime runs on the mediapipe backend with the detector as proposer")
+    legacy = args.sharpen or args.scan_frames != 1 or args.no_body_search
+    if legacy and (args.backend != "mediapipe" or args.proposer != "blazepose"):
+        raise ValueError("--sharpen, --scan-frames and --no-body-search apply to --proposer blazepose (mediapipe) only")
+    if args.backend == "mediapipe" and args.proposer == "detector":
+        from trustnav.perception.detector import resolve_model
+
+        args.detector_model = str(resolve_model(args.detector_model))  # a missing file: refused here
+    elif args.detector_model is not None:
+        raise ValueError("--detector-model applies to --proposer detector (mediapipe backend) only")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
     face = None
@@ -428,12 +440,14 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
         out = folder.path
         kwargs = {}
         if args.backend == "mediapipe":
-            kwargs = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search}
+            kwargs = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search,
+                      "proposer": args.proposer, "detector_model": args.detector_model}  # fmt: skip
         backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime", **kwargs)
         face_fields = () if face is None else FACE_FIELDS  # --face: eye_contact_face, face_confidence
         sink = _RecordSink(out, face_fields + (() if ground is None else ground.FIELDS))
         images = _Annotations(out, sequences, args.mp4)
         counts = {"read": 0, "skipped": 0, "dropped": 0}
+        rejected: list[dict] = []  # proposals the landmark model or the geometry gate turned down
         interrupted = False
         is_live = sequences[0].kind == "live"
         total = None if is_live else frame_count([f for s in sequences for f in s.files])
@@ -486,6 +500,8 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
                             labels = [lab if r["distance_m"] is None else f"{lab} {r['distance_m']:.1f} m"
                                       for lab, r in zip(labels, res.records, strict=True)]  # fmt: skip
                         sink.add(res.records)
+                        rejected.extend({"sequence": seq.label, "frame": res.name, **r.as_dict()}
+                                        for r in getattr(backend, "last_rejections", []))  # fmt: skip
                         if not args.no_images or args.show:
                             img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people],
                                            labels)  # fmt: skip
@@ -515,6 +531,8 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
                 bar.close(finished=completed)
                 images.close()
                 sink.close()
+                if hasattr(backend, "last_rejections"):
+                    (out / "rejected.json").write_text(json.dumps(rejected, indent=1))
                 if hasattr(backend, "close"):
                     backend.close()
             finally:
@@ -549,6 +567,10 @@ def _estimate_run(args: argparse.Namespace, sequences, eye, face, ground, live_s
     print(f"estimate: {counts['read']} frames in {len(sequences)} sequence{'s' * (len(sequences) > 1)}, "
           f"{len(rows)} records, {tracks} tracks, {counts['skipped']} frames skipped{dropped}; "
           f"wrote {out}")  # fmt: skip
+    if rejected:
+        gate = sum("landmark model" not in r["reason"] for r in rejected)
+        print(f"  {len(rejected)} detector boxes rejected ({gate} by the geometry gate, {len(rejected) - gate} not "
+              f"confirmed by the landmark model): rejected.json")  # fmt: skip
     if ground is None:
         print("  no ground positions: give --camera-height (and --fov, --pitch) to place people on the ground")
     else:
@@ -1013,10 +1035,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         help=f"mediapipe: share the tiled search over N frames, {_range('scan_frames')} (faster, fewer found)",
     )
-    e.add_argument("--perception", choices=["offline", "realtime"], default="offline",
-                   help="offline (default): every frame searched in full; realtime: the search for new people "
-                   "runs beside the frame loop, people followed at frame rate (faster; results depend on the "
-                   "machine's speed; docs/perception.md)")  # fmt: skip
+    e.add_argument("--realtime", action="store_true",
+                   help="real-time perception (same as --perception realtime): the detector on every frame, "
+                   "landmarks refitted a few times a second and carried between (docs/perception.md)")  # fmt: skip
+    e.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
+                   help="mediapipe: who proposes people: the YOLOX-Nano person detector (default) or, as before, "
+                   "BlazePose's face detector over tiles with the segmentation and HOG searches")  # fmt: skip
+    e.add_argument("--detector-model", metavar="FILE",
+                   help="the YOLOX-Nano ONNX file (default: ../shared/models/yolox/ of a checkout, "
+                   "$TRUSTNAV_YOLOX_MODEL, the user cache, else downloaded once; a FILE given is never "
+                   "downloaded)")  # fmt: skip
+    e.add_argument("--perception", choices=["offline", "realtime"], default=None,
+                   help="offline (default for files): every box of every frame fitted; realtime (= --realtime, "
+                   "the default for live input): the detector on every frame, landmarks staggered "
+                   "(docs/perception.md)")  # fmt: skip
     e.add_argument(
         "--sharpen",
         type=float,

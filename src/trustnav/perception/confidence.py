@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BLAZEPOSE_TO_COCO", "HeadConfidenceParams", "head_yaw", "occlusion_confidences"]
+__all__ = ["BLAZEPOSE_TO_COCO", "HeadConfidenceParams", "face_confidences", "head_yaw", "occlusion_confidences"]
 
 # index of each COCO keypoint among BlazePose's 33 landmarks
 BLAZEPOSE_TO_COCO: tuple[int, ...] = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
@@ -64,13 +64,22 @@ def occlusion_confidences(
     if lm.ndim != 2 or lm.shape[0] != 33 or lm.shape[1] < 4:
         raise ValueError(f"landmarks must have shape (33, >=4) (x, y, z, visibility), got {lm.shape}")
     vis = np.clip(lm[list(BLAZEPOSE_TO_COCO), 3], 0.0, 1.0)
-    yaw = head_yaw(lm, params.kappa)
+    conf = vis.copy()
+    conf[:5] = face_confidences(vis[:5], head_yaw(lm, params.kappa), params)
+    return conf
+
+
+def face_confidences(
+    visibility: NDArray[np.float64], yaw: float, params: HeadConfidenceParams = HeadConfidenceParams()
+) -> NDArray[np.float64]:
+    """Confidences of the 5 COCO face keypoints (nose, eyes, ears) for a head turned by ``yaw``
+    (radians, :func:`head_yaw`'s convention) and BlazePose's ``visibility`` of them. The yaw may come
+    from the ears' depth or, where a face is seen well enough, from the face mesh
+    (:class:`~trustnav.perception.cues.FaceEyeContactCue`)."""
     eye = math.radians(params.eye_angle_deg)
     # COCO 0..4: nose, left eye, right eye, left ear, right ear; phi > 0 turns with the left side
     phi = np.array([0.0, eye, -eye, math.pi / 2, -math.pi / 2])
     facing = np.cos(yaw + phi)
     base = np.array([params.face_base] * 3 + [params.ear_base] * 2)
     gain = np.array([params.face_gain] * 3 + [params.ear_gain] * 2)
-    conf = vis.copy()
-    conf[:5] = np.clip(base + gain * facing, params.floor, 1.0) * vis[:5]
-    return conf
+    return np.clip(base + gain * facing, params.floor, 1.0) * np.asarray(visibility, dtype=float)

@@ -13,13 +13,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact, fuse_eye_contact
+from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, face_confidences
+from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact, FaceResult, fuse_eye_contact
 from trustnav.perception.looking import LookingModel, normalise_keypoints
 from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier, TemporalPhoneModel, fuse_crop
 from trustnav.perception.types import Person
@@ -95,13 +96,29 @@ class FaceEyeContactCue(EyeContactCue):
     face: FaceEyeContact = field(default_factory=FaceEyeContact)
 
     def __call__(self, frame: NDArray[np.uint8], people: Sequence[Person]) -> NDArray[np.float64]:
-        looking = self.looking(frame, people)
         faces = self.face(frame, people)
+        looking = self.looking(frame, [self._face_yawed(p, f) for p, f in zip(people, faces, strict=True)])
         w = self.face.config.max_face_weight
         fused = [
             fuse_eye_contact(float(p), f.probability, f.confidence, w) for p, f in zip(looking, faces, strict=True)
         ]
         return self.veto(people, np.array(fused, dtype=float))
+
+    def _face_yawed(self, person: Person, face: FaceResult) -> Person:
+        """``person`` with the face keypoints' confidences (LOOKING's input) from the face mesh's yaw
+        where a face of at least :data:`FACE_YAW_MIN_PX` was seen: BlazePose's ear depth often reads
+        the body's orientation (-80 deg where the mesh reads -30 deg); smaller faces keep the body's."""
+        lm = person.extra.get("blazepose")
+        if lm is None or face.face_px < FACE_YAW_MIN_PX or not math.isfinite(face.yaw):
+            return person
+        conf = np.array(person.confidences, dtype=float)
+        vis = np.clip(np.asarray(lm)[list(BLAZEPOSE_TO_COCO[:5]), 3], 0.0, 1.0)
+        conf[:5] = face_confidences(vis, math.radians(face.yaw))
+        return replace(person, confidences=conf)
+
+
+#: The face height (px) from which the face mesh's yaw sets LOOKING's face-keypoint confidences.
+FACE_YAW_MIN_PX = 20.0
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ the reason, never as pixels.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import re
 import sys
@@ -109,6 +110,46 @@ def expand_inputs(inputs: list[str | Path]) -> list[Path]:
     return files
 
 
+_DIGITS = re.compile(r"\d+")
+
+
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from the file's header (None if it cannot be read: the frame reader reports it)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return im.size
+    except Exception:  # an unreadable file is reported, and skipped, when its frame is read
+        return None
+
+
+def image_runs(images: list[Path]) -> list[list[Path]]:
+    """A folder's images split into sequences: images whose names are one pattern with a frame
+    number (``frame_0001.png``, ``image_00005310_0.png``), numbered at an even step (every frame, or
+    every k-th), and of one size, are one sequence; every other image is a sequence of its own (street
+    photos are not a video: track IDs and trust must not carry from one photo to the next).
+    ``plan_sequences(..., one_sequence=True)`` (``--one-sequence``) joins them anyway."""
+    groups: dict[str, list[Path]] = {}
+    for f in images:  # the name's pattern: its digit runs masked
+        groups.setdefault(_DIGITS.sub("#", f.name.lower()), []).append(f)
+    runs: list[list[Path]] = []
+    for pattern, members in groups.items():
+        numbers = [[int(d) for d in _DIGITS.findall(f.name)] for f in members]
+        varying = [k for k in range(pattern.count("#")) if len({n[k] for n in numbers}) > 1]
+        # one size (a file that cannot be read is reported, and skipped, when its frame is read)
+        sizes = {size for f in members if (size := _image_size(f)) is not None} if len(members) > 1 else set()
+        if len(sizes) == 1 and len(varying) == 1:
+            ordered = sorted(zip((n[varying[0]] for n in numbers), members, strict=True))
+            steps = {b[0] - a[0] for a, b in itertools.pairwise(ordered)}
+            if len(steps) == 1 and steps.pop() > 0:
+                runs.append([f for _, f in ordered])
+                continue
+        runs.extend([f] for f in members)
+    order = {f: i for i, f in enumerate(images)}
+    return sorted(runs, key=lambda run: order[run[0]])
+
+
 def plan_sequences(inputs: list[str | Path], *, one_sequence: bool = False) -> list[FrameSequence]:
     """Group the inputs into sequences: each video, each folder of frames (a video inside a
     folder is a sequence of its own) and each loose image; all as one with ``one_sequence``.
@@ -126,8 +167,8 @@ def plan_sequences(inputs: list[str | Path], *, one_sequence: bool = False) -> l
         if p.is_dir():
             files = _folder_files(p)
             images = [f for f in files if not is_video(f)]
-            if images:
-                raw.append((p, "folder", images))
+            for run in image_runs(images):  # photos are not a video: only numbered frames of one size
+                raw.append((p, "folder", run) if len(run) > 1 or len(images) == 1 else (run[0], "image", run))
             raw.extend((f, "video", [f]) for f in files if is_video(f))
         else:
             raw.append((p, "video" if is_video(p) else "image", [p]))

@@ -1,5 +1,11 @@
 """Default pose backend: MediaPipe BlazePose (pinned ``mediapipe==0.10.14``), many people per frame, offline.
 
+Since issue 35 people are proposed by the learned person detector (``MediaPipeConfig.proposer =
+"detector"``, :mod:`~trustnav.perception.detector`): each box is fitted by the landmark model below,
+which confirms it and gives its keypoints, then one box per person and the geometry gate
+(:mod:`~trustnav.perception.ground_gate`; rejections in ``last_rejections``). The proposers before it,
+described next, are ``proposer="blazepose"``.
+
 MediaPipe's legacy Pose solution follows one person. Here its two stages run as separate graphs
 built from the calculators that ship in the wheel (no model download, no jax):
 
@@ -27,7 +33,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -42,7 +48,9 @@ from trustnav.perception.body_search import (
     window_region,
 )
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
+from trustnav.perception.detector import PersonDetector
 from trustnav.perception.frames import quiet_stderr
+from trustnav.perception.ground_gate import GateConfig, HorizonFit, Rejection, gate_boxes
 from trustnav.perception.segment_search import MIN_HEIGHT_PX as SEGMENT_MIN_HEIGHT_PX
 from trustnav.perception.segment_search import MIN_PRESENCE as SEGMENT_MIN_PRESENCE
 from trustnav.perception.segment_search import blob_regions, plausible, segment_windows
@@ -151,6 +159,11 @@ def load_mediapipe() -> Any:
     return mediapipe
 
 
+#: Who proposes people: the learned detector (YOLOX-Nano, :mod:`~trustnav.perception.detector`) or,
+#: as before issue 35, BlazePose's face detector over tiles with the segmentation and HOG searches.
+PROPOSERS = ("detector", "blazepose")
+
+
 @dataclass(frozen=True)
 class MediaPipeConfig:
     """Tiling, thresholds and video behaviour of :class:`MediaPipePoseBackend`.
@@ -182,6 +195,12 @@ class MediaPipeConfig:
     small) through person segmentation (:mod:`trustnav.perception.segment_search`): square tiles of
     ``segment_tile`` x the shorter side; in video mode the tiles are shared out over
     ``segment_frames`` consecutive frames (a person found is followed from its landmarks after).
+    proposer: who proposes people: "detector" (default, issue 35: YOLOX-Nano,
+    :mod:`~trustnav.perception.detector`, from ``detector_model`` or the default places, boxes scored
+    >= ``detector_min_score``; each box fitted on a square of ``region_scale`` x its larger side, then
+    the geometry gate, ``geometry_gate``, :mod:`~trustnav.perception.ground_gate`) or "blazepose" (the
+    tiles, segmentation and HOG searches below, before issue 35; the tile, scan, sharpen, segment and
+    body settings apply to it only).
     body_search: also look for them by the shape of their body, with OpenCV's HOG people detector
     (:mod:`trustnav.perception.body_search`; it survives video compression, which the detector's
     face cue does not); in video mode on one frame in ``body_frames`` (or in ``scan_frames``, if more).
@@ -207,8 +226,23 @@ class MediaPipeConfig:
     segment_frames: int = 4
     body_search: bool = True
     body_frames: int = 2
+    proposer: str = "detector"
+    detector_model: str | None = None
+    detector_min_score: float = 0.25
+    region_scale: float = 1.25
+    geometry_gate: bool = True
 
     def __post_init__(self) -> None:
+        if self.proposer not in PROPOSERS:
+            raise ValueError(f"proposer must be one of {PROPOSERS}, got {self.proposer!r}")
+        if not 0.0 < self.detector_min_score < 1.0:
+            raise ValueError(f"detector_min_score must be in (0, 1), got {self.detector_min_score!r}")
+        if not 0.8 <= self.region_scale <= 2.0:
+            raise ValueError(
+                f"region_scale must be in [0.8, 2] (landmark region side / box height), got {self.region_scale!r}"
+            )
+        if not isinstance(self.geometry_gate, bool):
+            raise ValueError(f"geometry_gate must be True or False, got {self.geometry_gate!r}")
         for name in ("segment_search", "body_search"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -301,6 +335,12 @@ REFOLLOW_MAX_WIDTH = 0.6
 #: person was when the landmark model lost it and the detector searches around it: beyond it, the
 #: detection is a neighbour's (the follower drifted onto the next person of a group).
 REDETECT_MAX_SHIFT = 0.25
+
+#: A detector box is confirmed by a landmark fit whose extent overlaps it by at least this IoU (a fit
+#: that lands on a neighbour in a group overlaps less).
+MIN_FIT_IOU = 0.3
+#: A confirmed person's score before the body's presence: this + the rest x the detection score.
+CONFIRMED_FLOOR = 0.5
 
 #: The detection score given to a person found from segmentation (no detector score exists).
 SEGMENT_SCORE = 0.5
@@ -515,11 +555,21 @@ class MediaPipePoseBackend:
         self._followed: list[tuple[NDArray[np.float64], float]] = []
         self._frame_index = 0
         self.last_timing: dict[str, float] = {}
+        self.detector: PersonDetector | None = None
+        if self.config.proposer == "detector":  # made now: a missing or bad model file fails here
+            self.detector = PersonDetector(self.config.detector_model, min_score=self.config.detector_min_score)
+        self.horizon = HorizonFit(GateConfig().window)
+        #: what the latest frame's proposals came to: the geometry gate's rejections and the boxes the
+        #: landmark model did not confirm (:class:`~trustnav.perception.ground_gate.Rejection`)
+        self.last_rejections: list[Rejection] = []
+        #: a camera pose (trustnav.geometry CameraPose) for the geometry gate; None: fitted per frame
+        self.camera: Any = None
 
     def reset(self) -> None:
-        """Forget the people followed from the previous frame (call between videos)."""
+        """Forget the people followed from the previous frame and the fitted horizon (call between videos)."""
         self._followed = []
         self._frame_index = 0
+        self.horizon.reset()
 
     def close(self) -> None:
         """Stop the worker threads and release the graphs."""
@@ -532,6 +582,18 @@ class MediaPipePoseBackend:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def _submit(self, fn: Any, item: Any) -> Any:
+        """``fn(graphs, item)`` on a worker, as a future (the caller goes on meanwhile)."""
+
+        def task() -> Any:
+            g = self._graphs.get()
+            try:
+                return fn(g, item)
+            finally:
+                self._graphs.put(g)
+
+        return self._executor.submit(task)
 
     def _map(self, fn: Any, items: list[Any]) -> list[Any]:
         def task(item: Any) -> Any:
@@ -563,6 +625,10 @@ class MediaPipePoseBackend:
         each stage kept the workers busy ("detection", "landmarks"), shared out over the workers.
         """
         frame = check_frame(frame)
+        if self.config.proposer == "detector":
+            if self.detector is None:  # a config replaced after construction
+                self.detector = PersonDetector(self.config.detector_model, min_score=self.config.detector_min_score)
+            return self._detected(frame)
         search = sharpened(frame, self.config.sharpen, self.config.sharpen_sigma)  # for the detector only
         h, w = frame.shape[:2]
         windows = tiles(h, w, self.config)
@@ -629,6 +695,92 @@ class MediaPipePoseBackend:
         self._frame_index += 1
         self.last_timing = {k: v / self.config.workers for k, v in busy.items()}
         return [people[i] for i in keep]
+
+    def _detected(self, frame: NDArray[np.uint8]) -> list[Person]:
+        """People of one frame from the learned detector: each box confirmed and given keypoints by
+        the landmark model (the region followed from the previous frame first, in video mode), then
+        one box per person, then the geometry gate (:mod:`~trustnav.perception.ground_gate`)."""
+        assert self.detector is not None
+        h, w = frame.shape[:2]
+        t0 = time.perf_counter()
+        boxes, scores = self.detector(frame)
+        t1 = time.perf_counter()
+        followed = self._followed if self.video else []
+        jobs = [(self._regions(box, followed), float(score), box) for box, score in zip(boxes, scores, strict=True)]
+        results = self._map(lambda g, job: self._confirm(g, frame, *job, w, h), jobs)
+        t2 = time.perf_counter()
+        rejected = [
+            Rejection(tuple(map(float, box)), score, "the landmark model found no upright person in the box")
+            for (_, score, box), res in zip(jobs, results, strict=True)
+            if res is None
+        ]
+        kept = [(res, score) for res, (_, score, _) in zip(results, jobs, strict=True) if res is not None]
+        people = [res[3] for res, _ in kept]
+        # of two boxes on one person (a woman and her pram in one box, and she alone in another),
+        # the one whose landmark fit fills it best is the person's
+        keep = one_box_per_person([replace(p, score=p.extra["fit_iou"]) for p in people], self.config.duplicate_iou)
+        people, kept = [people[i] for i in keep], [kept[i] for i in keep]
+        if self.config.geometry_gate:
+            ok, gated = gate_boxes(
+                [p.bbox for p in people],
+                [p.score for p in people],
+                (w, h),
+                camera=self.camera,
+                fit=self.horizon if self.video else None,
+            )
+            rejected += gated
+            people, kept = [people[i] for i in ok], [kept[i] for i in ok]
+        for p in people:
+            p.extra["detected"] = True
+        self._followed = [(res[1], score) for res, score in kept]
+        self._frame_index += 1
+        self.last_rejections = rejected
+        self.last_timing = {"detection": t1 - t0, "landmarks": t2 - t1}
+        return people
+
+    def _regions(self, box: NDArray[np.float64], followed: list[tuple[NDArray[np.float64], float]]) -> NDArray:
+        """Landmark regions to try for a detector box: a followed person's region that lies on it
+        (video mode), then the box's own square (side ``region_scale`` x the box's height)."""
+        own = box_region(box, self.config.region_scale)
+        regions = [roi for roi, _ in followed if box_iou(_region_box(roi), box) >= 0.3 and _same_region(roi, own)]
+        return np.vstack([*regions[:1], own])
+
+    def _confirm(
+        self, g: _Graphs, frame: NDArray[np.uint8], rois: NDArray, score: float, box: NDArray, w: int, h: int
+    ) -> tuple | None:
+        """The landmark fit that confirms a detector box: the first of ``rois`` (then the box's own square shrunk by
+        :data:`RETRY_SCALES`, for small people) whose landmarks :meth:`_person` accepts and whose extent
+        overlaps the box by IoU >= 0.5 (else the first with :data:`MIN_FIT_IOU`: in a group the fit can take
+        in a neighbour's limbs). The person keeps the detector's box (head top to soles, as people are
+        labelled), stretched up or down to the fit's padded extent where a fit with IoU >= 0.5 reaches
+        beyond it, and the fit's keypoints; its score is :data:`CONFIRMED_FLOOR` + the rest x the detection
+        score, times the body's landmark presence (the tracker takes boxes >= 0.4 as sure)."""
+
+        def accept(lm: NDArray[np.float64], roi: NDArray) -> Person | None:
+            return self._person(lm, CONFIRMED_FLOOR + (1.0 - CONFIRMED_FLOOR) * score, w, h, roi)
+
+        tighter = rois[-1].copy()
+        tighter[2] *= RETRY_SCALES[0]
+        best = None
+        for roi in (*rois, tighter):
+            out = g._accepted(frame, roi, accept)
+            if out is None:
+                continue
+            overlap = box_iou(out[3].bbox, box)
+            if overlap >= 0.5:
+                best = out
+                break
+            if overlap >= MIN_FIT_IOU and best is None:
+                best = out
+        if best is None:
+            return None
+        fit_iou = box_iou(best[3].bbox, box)
+        bbox = np.asarray(box, dtype=np.float64).copy()
+        if fit_iou >= 0.5:  # a fit of this person: its head top and soles where the box stops short
+            bbox[1], bbox[3] = min(bbox[1], best[3].bbox[1]), max(bbox[3], best[3].bbox[3])
+        person = replace(best[3], bbox=bbox)
+        person.extra["fit_iou"] = fit_iou
+        return (*best[:3], person)
 
     def _segment_search(
         self,
@@ -728,6 +880,15 @@ class MediaPipePoseBackend:
             score=float(min(1.0, score)) * presence,
             extra={"blazepose": lm},
         )
+
+
+def box_region(box: NDArray[np.float64], scale: float = 1.25) -> NDArray[np.float64]:
+    """The landmark model's region for a person box: a square of side ``scale`` x the box's larger
+    side, upright, centred on the box (the hips lie near a standing person's middle), as
+    [cx, cy, side, rotation, face x, face y, face size] with no face (NaN)."""
+    x1, y1, x2, y2 = (float(v) for v in box[:4])
+    side = scale * max(y2 - y1, x2 - x1, 1.0)
+    return np.array([(x1 + x2) / 2, (y1 + y2) / 2, side, 0.0, np.nan, np.nan, np.nan])
 
 
 def _presence(lm: NDArray[np.float64]) -> float:

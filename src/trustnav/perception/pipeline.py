@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Container, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from numbers import Real
 from types import MappingProxyType
@@ -94,6 +94,7 @@ class PerceptionPipeline:
         self.eye_model = next((c.model for c in self.cues if isinstance(c, EyeContactCue)), None)
         self.phone = next((c.classifier for c in self.cues if isinstance(c, PhoneUseCue)), None)
         self.last_timing: dict[str, float] = {}
+        self._last_values: dict[int, dict[str, float]] = {}  # per track, its latest judged cue values
 
     def __call__(self, frame: NDArray[np.uint8], time: float | None = None) -> list[TrackedPerson]:
         """Tracked people of ``frame``; ``time`` (seconds) lets temporal cues (phone use over time)
@@ -104,7 +105,7 @@ class PerceptionPipeline:
         t1 = _time.perf_counter()
         ids = self.tracker.update(people)
         t2 = _time.perf_counter()
-        values = {c.name: run_cue(c, frame, people, track_ids=ids, time=time) for c in self.cues} if people else {}
+        values = self._cue_values(frame, people, ids, time)
         t3 = _time.perf_counter()
         self.last_timing = dict(getattr(self.backend, "last_timing", {}) or {"pose": t1 - t0})
         self.last_timing.update(traits=t3 - t2, tracking=t2 - t1)
@@ -117,10 +118,42 @@ class PerceptionPipeline:
             if tid >= 0
         ]
 
+    def _cue_values(
+        self, frame: NDArray[np.uint8], people: list[Person], ids: list[int], time: float | None
+    ) -> dict[str, list[float]]:
+        """Each cue's values per person. People whose keypoints the real-time backend carried from an
+        earlier fit (``extra["carried"]``) are not judged again: they show their track's last values."""
+        fresh = [i for i, p in enumerate(people) if not p.extra.get("carried")]
+        if not fresh:
+            values: dict[str, list[float]] = {c.name: [math.nan] * len(people) for c in self.cues} if people else {}
+        else:
+            sub = [people[i] for i in fresh]
+            sub_ids = [ids[i] for i in fresh]
+            judged = {c.name: run_cue(c, frame, sub, track_ids=sub_ids, time=time) for c in self.cues}
+            values = {name: [math.nan] * len(people) for name in judged}
+            for name, vs in judged.items():
+                for i, v in zip(fresh, vs, strict=True):
+                    values[name][i] = v
+        for i, (p, tid) in enumerate(zip(people, ids, strict=True)):
+            if tid < 0:
+                continue
+            if p.extra.get("carried"):
+                for name, v in self._last_values.get(tid, {}).items():
+                    if name in values:
+                        values[name][i] = v
+            else:
+                self._last_values[tid] = {name: vs[i] for name, vs in values.items()}
+        return values
+
     @staticmethod
-    def observations(people: Iterable[TrackedPerson], time: float) -> list[Observation]:
+    def observations(
+        people: Iterable[TrackedPerson], time: float, known: Container[int] | None = None
+    ) -> list[Observation]:
         """One trust observation per tracked person (cues of `smato_score`, `eye_score` and any
-        other trait; keypoints and box for `pose_conf`). A NaN cue is left out (missing)."""
+        other trait; keypoints and box for `pose_conf`). A NaN cue is left out (missing). A person
+        whose keypoints the real-time backend carried (``extra["carried"]``) was not judged on this
+        frame: no observation (the same evidence is not counted twice), unless its track is not
+        among ``known`` (the tracks trust already has; the tracker gave it a new ID)."""
         return [
             Observation(
                 track_id=tp.track_id,
@@ -132,6 +165,7 @@ class PerceptionPipeline:
                 cues={n: c for n, c in tp.cues.items() if not math.isnan(c)},
             )
             for tp in people
+            if not tp.person.extra.get("carried") or (known is not None and tp.track_id not in known)
         ]
 
 
@@ -197,7 +231,7 @@ def estimate(
                 # a person the real-time backend only carried by its velocity was not measured on
                 # this frame: reported, but no evidence for trust
                 measured = [tp for tp in result.people if not tp.person.extra.get("predicted")]
-                estimator.update(pipeline.observations(measured, t), time=t)
+                estimator.update(pipeline.observations(measured, t, known=estimator.tracks), time=t)
                 result.records = [_record(item.name, tp, estimator, sequence) for tp in result.people]
                 result.timing = dict(pipeline.last_timing)
             except Exception as exc:  # one bad frame never stops the sequence

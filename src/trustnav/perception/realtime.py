@@ -1,48 +1,44 @@
-"""Real-time person following: the search for new people runs beside the frame loop (issue 20).
+"""Real-time perception on two cores: the learned detector every frame, landmarks as the budget allows.
 
-:class:`RealtimePoseBackend` is a drop-in pose backend (callable on a frame) built from the same two
-BlazePose graphs as :class:`~trustnav.perception.mediapipe_backend.MediaPipePoseBackend`, split over
-the two cores differently:
+:class:`RealtimePoseBackend` is a drop-in pose backend (callable on a frame) built on the offline
+backend's parts (:class:`~trustnav.perception.mediapipe_backend.MediaPipePoseBackend` with the
+YOLOX-Nano proposer), split over time instead of run in full on every frame:
 
-- **one core searches**: a background thread runs the tiled detector over the newest frame it was
-  handed, again and again (a full search of a 640x480 frame takes ~0.35 s on one core); regions of
-  people it finds are handed to the frame loop, which fits them on the frame it is at (people move
-  a few pixels in a search's time; the landmark region tolerates that);
-- **the other follows**: each frame, the people already found are fitted from the region of their
-  own landmarks, as MediaPipe's video mode does. With ``landmark_every`` = k a person is fitted on
-  one frame in k (people are staggered over the frames) and carried on the others by the velocity
-  of its last fits: its box and keypoints moved, its landmarks marked ``extra["predicted"]``.
+- **detection** on every frame (``RealtimeConfig.search_frames`` = k: one frame in k), one
+  onnxruntime thread, ~25-30 ms at 640x480: every person's box is measured on that frame;
+- **landmarks** (the BlazePose landmark model that confirms a box and gives the keypoints the cues
+  read) on the two workers: new boxes on the frame they appear (they must be confirmed before they
+  are reported), the largest first, in what the frame's ``max_fits`` leave (at least one), and each
+  followed person again once ``landmark_every`` frames have passed since its last fit, the most
+  overdue first, at most ``max_fits`` a frame, while the detector runs; the others are **carried**: the detector's
+  box of this frame with the keypoints of the last fit moved and scaled onto it
+  (``extra["carried"]``: their cues are those of the last fit). A followed person the detector does
+  not box on a frame is carried by its velocity for up to ``carry_frames`` frames
+  (``extra["predicted"]``: no measurement on this frame);
+- the **geometry gate** (:mod:`~trustnav.perception.ground_gate`) on new people, the horizon fitted
+  over the stream's people; boxes the landmark model did not confirm are not tried again for
+  2 x ``landmark_every`` frames where they stay, boxes under ``min_height_px`` not at all.
 
-The first frame after :meth:`reset` is searched in full before it is answered, so a stream starts
-with everybody in view. With ``RealtimeConfig(search_frames=k)`` the search runs in step with the
-frames instead of on its own thread, its findings handed over as if it had taken k frames: the same
-behaviour, deterministic (simulated drives, tests), but not faster. ``stats`` reports the searches
-done and their mean duration: the time to first detection of a person who appears later is at most
-about two search durations.
+Every step is in the frame loop, so an episode is a pure function of its frames (no search thread,
+nothing load-dependent); the latency of a frame is one detection plus at most ``max_fits`` landmark
+fits shared by two workers.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.perception.ground_gate import Rejection, gate_boxes
 from trustnav.perception.mediapipe_backend import (
-    SEGMENT_SCORE,
     MediaPipeConfig,
     MediaPipePoseBackend,
-    _merge_regions,
-    _region_box,
-    _same_region,
     one_box_per_person,
-    sharpened,
-    tiles,
 )
 from trustnav.perception.types import Person, box_iou, check_frame
 
@@ -51,46 +47,45 @@ __all__ = ["SEARCH_SECONDS", "RealtimeConfig", "RealtimePoseBackend", "modelled_
 
 @dataclass(frozen=True)
 class RealtimeConfig:
-    """landmark_every: a followed person is fitted on one frame in this many (1: every frame) and
-    moved by its velocity in between. max_search_age: regions from a search whose frame is more than
-    this many frames old are dropped (the person has moved too far for its region). carry_frames: a
-    person whose fit fails (or lands on someone else) is carried by its velocity for up to this many
-    frames beyond ``landmark_every``, long enough for the search to find it again; the carried
-    person's landmarks say ``extra["predicted"]``. search_frames: None (default) runs the search on
-    its own thread, as fast as the machine allows (what it finds, and when, depends on the machine
-    and its load); an integer k makes the backend deterministic: the search runs in step with the
-    frame loop on the frame it starts from, and hands over what it found as if it had taken k
-    frames (its batches spread over them, the segmentation proposals last), the next search starting
-    when one ends; an episode is then a pure function of its frames (:func:`modelled_search_frames`
-    turns a search time into k)."""
+    """landmark_every: a followed person is fitted again once this many frames have passed since its
+    last fit (3 at 15 frames/s: traits refreshed 5 times a second); max_fits: landmark fits per frame
+    at most for followed people (new boxes are always fitted); carry_frames: frames a followed person
+    the detector does not box is carried by its velocity; search_frames: None (default) detects on
+    every frame, an integer k on one frame in k (the others carry every person by its velocity);
+    min_height_px: boxes shorter than this are not fitted (a far crowd's 30-40 px people cost a landmark
+    fit each, and the landmark model rarely confirms them); a box the landmark model did not confirm
+    is not tried again for 2 x ``landmark_every`` frames where it stays."""
 
-    landmark_every: int = 2
-    max_search_age: int = 15
-    carry_frames: int = 8
+    landmark_every: int = 3
+    max_fits: int = 3
+    carry_frames: int = 4
     search_frames: int | None = None
+    min_height_px: float = 40.0
 
     def __post_init__(self) -> None:
         if self.search_frames is not None and (
             isinstance(self.search_frames, bool) or not isinstance(self.search_frames, int) or self.search_frames < 1
         ):
-            raise ValueError(f"search_frames must be None (threaded) or an integer >= 1, got {self.search_frames!r}")
+            raise ValueError(f"search_frames must be None (every frame) or an integer >= 1, got {self.search_frames!r}")
         if not isinstance(self.landmark_every, int) or not 1 <= self.landmark_every <= 10:
             raise ValueError(f"landmark_every must be an integer in [1, 10], got {self.landmark_every!r}")
+        if not isinstance(self.max_fits, int) or not 0 <= self.max_fits <= 20:
+            raise ValueError(f"max_fits must be an integer in [0, 20], got {self.max_fits!r}")
+        if not 0.0 <= self.min_height_px <= 1000.0:
+            raise ValueError(f"min_height_px must be in [0, 1000], got {self.min_height_px!r}")
         if not isinstance(self.carry_frames, int) or not 0 <= self.carry_frames <= 100:
             raise ValueError(f"carry_frames must be an integer in [0, 100], got {self.carry_frames!r}")
-        if not isinstance(self.max_search_age, int) or self.max_search_age < 1:
-            raise ValueError(f"max_search_age must be an integer >= 1, got {self.max_search_age!r}")
 
 
-#: Seconds a search of a whole frame takes on one core of the 2-core machine (the mean of
-#: ``RealtimePoseBackend.stats``: 0.35-0.5 s at 640x480, more at 1280x720), the default of
+#: Seconds one detection of a whole frame takes on one core of the 2-core machine (YOLOX-Nano on
+#: onnxruntime, 22-31 ms at 640x480 quiet; with the landmark fits beside it), the default of
 #: :func:`modelled_search_frames`.
-SEARCH_SECONDS = 0.5
+SEARCH_SECONDS = 0.05
 
 
 def modelled_search_frames(fps: float, search_seconds: float = SEARCH_SECONDS) -> int:
-    """The frames a search of ``search_seconds`` spans in a stream of ``fps`` frames/s (at least 1):
-    ``RealtimeConfig.search_frames`` for a deterministic run."""
+    """The frames a detection of ``search_seconds`` spans in a stream of ``fps`` frames/s (at least 1):
+    ``RealtimeConfig.search_frames`` for a run that detects only as often as the machine could."""
     if not (math.isfinite(fps) and fps > 0 and math.isfinite(search_seconds) and search_seconds > 0):
         raise ValueError(f"fps and search_seconds must be positive, got {fps!r} and {search_seconds!r}")
     return max(1, math.ceil(search_seconds * fps - 1e-9))
@@ -100,379 +95,190 @@ def modelled_search_frames(fps: float, search_seconds: float = SEARCH_SECONDS) -
 class _Followed:
     """A person followed from frame to frame."""
 
-    roi: NDArray[np.float64]  # region for the next fit, as the last fit gave it
-    score: float
-    fitted: Person  # as last fitted
+    fitted: Person  # as last fitted (its box the detector's of that frame)
     fitted_at: int  # frame index of that fit
-    velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))  # pixels per frame
-    person: Person | None = None  # this frame's: fitted, or carried by the velocity
-
-    def __post_init__(self) -> None:
-        if self.person is None:
-            self.person = self.fitted
-
-
-@dataclass
-class _Search:
-    frame_index: int
-    seconds: float
-    people: list  # [(next region, score, person)] as found on that frame
+    roi: NDArray[np.float64]  # the landmark model's region for the next fit
+    box: NDArray[np.float64]  # this frame's box (detected or carried)
+    seen_at: int  # last frame the detector boxed it
+    velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))  # box centre, px per frame
+    person: Person | None = None
 
 
 class RealtimePoseBackend(MediaPipePoseBackend):
-    """Pose backend for streams: asynchronous search, following at frame rate (module docstring).
+    """Pose backend for streams: the detector on every frame, landmarks staggered (module docstring).
 
-    Always in video mode; call :meth:`reset` between streams and :meth:`close` at the end (it stops
-    the search thread).
+    Always in video mode; call :meth:`reset` between streams and :meth:`close` at the end.
+    ``stats`` gives the frames, fits per frame and the detector's mean time.
     """
 
     def __init__(self, config: MediaPipeConfig | None = None, realtime: RealtimeConfig | None = None) -> None:
-        config = replace(config or MediaPipeConfig(), workers=2)
+        config = replace(config or MediaPipeConfig(), workers=2, proposer="detector")
         super().__init__(config, video=True)
-        # mediapipe 0.10.14 warns on every graph call (protobuf's GetPrototype). A scoped filter
-        # (``protobuf_warning_ignored``) is not thread-safe with two threads calling graphs, so this
-        # backend ignores that one message for the rest of the process.
+        # mediapipe 0.10.14 warns on every graph call (protobuf's GetPrototype); with two workers a
+        # scoped filter is not thread-safe, so this one message is ignored for the process
         warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
         self.realtime = realtime or RealtimeConfig()
-        self._follower, self._searcher = self._all_graphs
-        self._lock = threading.Condition()
-        self._pending: tuple[int, NDArray[np.uint8]] | None = None
-        self._found: list[_Search] = []
-        self._busy = False
-        self._stop = False
         self._people: list[_Followed] = []
-        self._searches: list[float] = []
-        self._thread: threading.Thread | None = None
-        self._turn = 0  # searches started: which share of the segmentation tiles, whether the body search
-        # deterministic mode (RealtimeConfig.search_frames): (frame index handed over at, _Search)
-        self._scheduled: list[tuple[int, _Search]] = []
-        self._next_search = 1  # the frame the next search starts from
-        self._previous: NDArray[np.uint8] | None = None  # the frame the last search started from
-
-    # -- the search thread -------------------------------------------------------------------
-
-    def _start(self) -> None:
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._search_loop, name="trustnav-search", daemon=True)
-            self._thread.start()
-
-    def _search_loop(self) -> None:
-        previous: NDArray[np.uint8] | None = None
-        while True:
-            with self._lock:
-                while self._pending is None and not self._stop:
-                    self._lock.wait()
-                if self._stop:
-                    return
-                index, frame, known = self._pending
-                self._pending = None
-                self._busy = True
-            t0 = time.perf_counter()
-
-            def publish(people: list, index: int = index, t0: float = t0) -> None:
-                with self._lock:
-                    self._found.append(_Search(index, time.perf_counter() - t0, people))
-
-            try:
-                self._search(frame, known, previous, publish)
-            except Exception:  # a failed search loses the rest of that search only
-                pass
-            previous = frame
-            with self._lock:
-                self._busy = False
-                self._searches.append(time.perf_counter() - t0)
-                self._lock.notify_all()
-
-    def _search(
-        self,
-        frame: NDArray[np.uint8],
-        known: list[NDArray[np.float64]],
-        previous: NDArray[np.uint8] | None,
-        publish: Callable[[list], None],
-    ) -> None:
-        """New people on ``frame`` (searcher core): the tiled detector, then the landmark check on
-        the regions that are not people followed already; what is found is published after each
-        batch of :data:`SEARCH_BATCH` windows, [(next region, score, person)], so that a person
-        found early in a search is followed before the search ends. Windows are searched in order of
-        :func:`search_order` (the whole frame, then where the image changed and its side edges);
-        then the HOG body-shape search (:mod:`~trustnav.perception.body_search`) and person
-        segmentation (:mod:`~trustnav.perception.segment_search`) propose the people the detector
-        does not see, each published when it ends."""
-        h, w = frame.shape[:2]
-        search = sharpened(frame, self.config.sharpen, self.config.sharpen_sigma)
-        windows = search_order(tiles(h, w, self.config), frame, previous)
-        checked: list[NDArray[np.float64]] = list(known)
-        for start in range(0, len(windows), SEARCH_BATCH):
-            regions = [r for win in windows[start : start + SEARCH_BATCH] for r in self._searcher.detect(search, win)]
-            out = []
-            for rois, score in _merge_regions(regions):
-                if any(_same_region(rois[0], r) for r in checked):
-                    continue
-                checked.append(rois[0])
-                res = self._searcher.landmarks_of_group(
-                    frame, rois, lambda lm, roi, s=score: self._person(lm, s, w, h, roi)
-                )
-                if res is not None:
-                    out.append((res[1], score, res[3]))
-                    checked.append(res[1])
-            if out:
-                publish(out)
-        on_searcher = lambda fn, items: [fn(self._searcher, item) for item in items]  # noqa: E731
-        turn, self._turn = self._turn, self._turn + 1
-        if self.config.body_search and turn % self.config.body_frames == 0:
-            # the people found by their body's shape (body_search), on one search in body_frames
-            known = [_region_box(r) for r in checked]
-            found = self._body_search(frame, self._searcher.bodies(frame), known, w, h, on_searcher)
-            checked += [res[1] for res in found]
-            if found:
-                publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
-        if self.config.segment_search:  # the people the detector does not see (segment_search)
-            found = self._segment_search(  # a share of the tiles per search, in turn
-                frame, [_region_box(r) for r in checked], w, h, turn, on_searcher
-            )  # fmt: skip
-            if found:
-                publish([(res[1], SEGMENT_SCORE, res[3]) for res in found])
-
-    def _hand_over(self, index: int, frame: NDArray[np.uint8], known: list[NDArray[np.float64]]) -> list[_Search]:
-        """Give the searcher the newest frame (replacing one it has not started) and the regions of
-        the people followed; take what earlier searches found."""
-        with self._lock:
-            self._pending = (index, frame, known)
-            found, self._found = self._found, []
-            self._lock.notify_all()
-        return found
-
-    def _in_step(self, index: int, frame: NDArray[np.uint8], known: list[NDArray[np.float64]]) -> list[_Search]:
-        """Deterministic mode: start a search on this frame if the last one has ended (run here,
-        in the frame loop), and take what is due by this frame."""
-        k = self.realtime.search_frames
-        assert k is not None
-        if index >= self._next_search:
-            batches: list[list] = []
-            t0 = time.perf_counter()
-            self._search(frame, known, self._previous, batches.append)
-            self._searches.append(time.perf_counter() - t0)
-            for j, people in enumerate(batches):  # spread over the search's frames, in order
-                due = index + math.ceil((j + 1) * k / len(batches))
-                self._scheduled.append((due, _Search(index, (due - index) / k, people)))
-            self._previous = frame
-            self._next_search = index + k
-        due = [s for at, s in self._scheduled if at <= index]
-        self._scheduled = [(at, s) for at, s in self._scheduled if at > index]
-        return due
-
-    def _quiet_searcher(self) -> None:
-        """Wait for a search under way to end and drop what it found (start of a stream)."""
-        with self._lock:
-            self._pending = None
-            while self._busy:
-                self._lock.wait()
-            self._found = []
-
-    # -- the frame loop ----------------------------------------------------------------------
+        self._unconfirmed: list[tuple[int, NDArray[np.float64]]] = []  # (frame, box) the landmarks refused
+        self._fits: list[int] = []
+        self._detect_s: list[float] = []
 
     def reset(self) -> None:
-        """Forget the people followed (call between streams)."""
-        self._quiet_searcher()
+        """Forget the people followed and the fitted horizon (call between streams)."""
         self._people = []
-        self._scheduled, self._next_search, self._previous = [], 1, None
-        self._turn = 0
+        self._unconfirmed = []
         super().reset()
-
-    def close(self) -> None:
-        """Stop the search thread and release the graphs."""
-        with self._lock:
-            self._stop = True
-            self._lock.notify_all()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        super().close()
 
     @property
     def stats(self) -> dict[str, float]:
-        """Searches completed and their mean and largest duration (s)."""
-        s = self._searches
-        return {"searches": len(s), "search_mean_s": float(np.mean(s)) if s else math.nan,
-                "search_max_s": float(np.max(s)) if s else math.nan}  # fmt: skip
+        """Frames, landmark fits per frame (mean) and the detector's mean seconds per frame."""
+        return {
+            "frames": len(self._fits),
+            "fits_per_frame": float(np.mean(self._fits)) if self._fits else math.nan,
+            "detect_mean_s": float(np.mean(self._detect_s)) if self._detect_s else math.nan,
+            # kept for callers of the former searching design: a detection is this design's search
+            "searches": len(self._detect_s),
+            "search_mean_s": float(np.mean(self._detect_s)) if self._detect_s else math.nan,
+        }
 
     def __call__(self, frame: NDArray[np.uint8]) -> list[Person]:
-        """People in ``frame`` (H x W x 3 uint8 RGB), answered without waiting for a search (except
-        on the first frame of a stream)."""
+        """People in ``frame`` (H x W x 3 uint8 RGB): detected boxes, fitted or carried keypoints."""
+        assert self.detector is not None
         frame = check_frame(frame)
         h, w = frame.shape[:2]
         index = self._frame_index
+        cfg = self.realtime
         t0 = time.perf_counter()
-        known = [f.roi for f in self._people if f.fitted_at == index - 1]  # found last frame
-        deterministic = self.realtime.search_frames is not None
-        if index == 0:
-            self._quiet_searcher()
-            groups = self.detect(sharpened(frame, self.config.sharpen, self.config.sharpen_sigma))
-            found: list = []
-            if not deterministic:
-                self._start()  # the search thread starts on the next frame (this one is searched)
-        else:
-            groups = []
-            searches = self._in_step(index, frame, known) if deterministic else self._hand_over(index, frame, known)
-            found = [p for s in searches if index - s.frame_index <= self.realtime.max_search_age for p in s.people]
+        for f in self._people:  # where each followed person should be now
+            f.box = _shifted(f.box, f.velocity, w, h)
+        # followed people due a fit, the most overdue first: fitted on their own region (moved by their
+        # velocity) on the two workers while the detector runs on this thread
+        due = sorted(
+            (i for i, f in enumerate(self._people) if index - f.fitted_at >= cfg.landmark_every),
+            key=lambda i: self._people[i].fitted_at,
+        )[: cfg.max_fits]
+        for i in due:
+            f = self._people[i]
+            f.roi = f.roi.copy()
+            f.roi[:2] += f.velocity * (index - f.fitted_at)
+        pending = [
+            self._submit(
+                lambda g, f: self._confirm(g, frame, f.roi[None, :], f.fitted.score, f.box, w, h), self._people[i]
+            )
+            for i in due
+        ]
+        detect = cfg.search_frames is None or index % cfg.search_frames == 0 or not self._people
+        boxes, scores = self.detector(frame) if detect else (np.zeros((0, 4)), np.zeros(0))
         t1 = time.perf_counter()
-        people = self._follow(frame, index, groups, found, w, h)
-        if index == 0:
-            people = self._first_proposals(frame, people, w, h)
-        self.last_timing = {"detection": t1 - t0, "landmarks": time.perf_counter() - t1}
-        self._frame_index += 1
-        return people
-
-    def _first_proposals(self, frame: NDArray[np.uint8], people: list[Person], w: int, h: int) -> list[Person]:
-        """The first frame as the offline backend's: the people segmentation and the body-shape
-        search propose beside the detector's, then one box per person (followed from then on)."""
-        searches = []
-        if self.config.segment_search:
-            searches.append(lambda known: self._segment_search(frame, known, w, h, turn=0))
-        if self.config.body_search:
-            searches.append(lambda known: self._body_search(frame, self._follower.bodies(frame), known, w, h))
-        for search in searches:
-            for res in search([p.bbox for p in people]):
-                self._people.append(_Followed(res[1], SEGMENT_SCORE, res[3], 0))
-                people.append(res[3])
-        keep = one_box_per_person(people, self.config.duplicate_iou)
+        if detect:
+            self._detect_s.append(t1 - t0)
+        matched, new = _associate([f.box for f in self._people], boxes)
+        for i, j in matched.items():
+            f = self._people[i]
+            centre = _centre(boxes[j]) - _centre(f.box) + f.velocity
+            f.velocity = 0.5 * f.velocity + 0.5 * _capped(centre, boxes[j])
+            f.box, f.seen_at = boxes[j].astype(np.float64), index
+        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < 2 * cfg.landmark_every]
+        new = [
+            j for j in new
+            if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
+            and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
+        ]  # fmt: skip
+        # new boxes, the largest (nearest) first, in what is left of the frame's fits (at least one)
+        new.sort(key=lambda j: boxes[j][1] - boxes[j][3])
+        new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
+        jobs = [("new", j, self._regions(boxes[j], []), float(scores[j]), boxes[j]) for j in new]
+        results = self._map(lambda g, job: self._confirm(g, frame, job[2], job[3], job[4], w, h), jobs)
+        for i, fut in zip(due, pending, strict=True):
+            f, res = self._people[i], fut.result()
+            f.fitted_at = index  # a failed fit keeps its last keypoints; tried again in landmark_every
+            if res is not None and box_iou(res[3].bbox, f.box) >= 0.3:
+                # the fit's box is the predicted one; where the detector boxed the person, its box
+                bbox = res[3].bbox if f.seen_at != index else f.box
+                f.fitted, f.roi = replace(res[3], bbox=np.asarray(bbox, dtype=np.float64).copy()), res[1]
+        t2 = time.perf_counter()
+        rejected: list[Rejection] = []
+        fresh: list[_Followed] = []
+        for (_, _, _, score, box), res in zip(jobs, results, strict=True):
+            if res is None:
+                self._unconfirmed.append((index, np.asarray(box, dtype=np.float64)))
+                rejected.append(Rejection(tuple(map(float, box)), score, "the landmark model found no upright person"))
+                continue
+            fresh.append(_Followed(res[3], index, res[1], np.asarray(box, dtype=np.float64), index))
+        if fresh and self.config.geometry_gate:
+            ok, gated = gate_boxes([f.box for f in fresh], [f.fitted.score for f in fresh], (w, h),
+                                   camera=self.camera, fit=self.horizon)  # fmt: skip
+            rejected += gated
+            for r in gated:
+                self._unconfirmed.append((index, np.asarray(r.bbox)))
+            fresh = [fresh[i] for i in ok]
+        # followed people lost for longer than carry_frames are dropped
+        self._people = [f for f in self._people if index - f.seen_at <= cfg.carry_frames] + fresh
+        for f in self._people:
+            f.person = _carried(f, index, w, h)
+        keep = one_box_per_person([f.person for f in self._people], self.config.duplicate_iou)
         self._people = [self._people[i] for i in keep]
-        return [people[i] for i in keep]
-
-    def _fit(self, frame: NDArray[np.uint8], rois: NDArray[np.float64], score: float, w: int, h: int) -> tuple | None:
-        # no refit on tried regions (FOLLOW_TRIES) here: the frame loop has no time for two more landmark
-        # calls per lost person, and it carries a lost person until a search finds them again
-        def accept(lm: NDArray[np.float64], roi: NDArray[np.float64]) -> Person | None:
-            return self._person(lm, score, w, h, roi)
-
-        return self._follower.landmarks_or_redetect(frame, rois, accept, tries=())
-
-    def _follow(self, frame: NDArray[np.uint8], index: int, groups: list, found: list, w: int, h: int) -> list[Person]:
-        """Fit (or carry) the people followed, fit the regions of ``groups`` (the first frame's
-        search) and the people a search ``found`` on an earlier frame that nobody covers now."""
-        k = self.realtime.landmark_every
-        fitted: list[_Followed] = []  # fitted on this frame
-        carried: list[_Followed] = []  # moved by their velocity: not due, not found, or taken by another
-        prior: list[_Followed] = []  # each fit's state before it, carried if the fit is dropped
-        for n, f in enumerate(self._people):
-            ahead = f.velocity * (index - f.fitted_at)
-            moved = replace(f, person=_moved(f.fitted, ahead, w, h))
-            if index - f.fitted_at >= k or (index + n) % k == 0:
-                roi = f.roi.copy()
-                roi[:2] += ahead  # where the person should be now
-                res = self._fit(frame, roi[None, :], f.score, w, h)
-                if res is not None:
-                    person = res[3]
-                    fitted.append(_Followed(res[1], f.score, person, index, _velocity(f, person, index)))
-                    prior.append(moved)
-                    continue
-            carried.append(moved)
-        # people a search found on an earlier frame whom no fit of this frame covers: fitted now
-        for roi, score, person in found:
-            if any(box_iou(person.bbox, g.person.bbox) >= CARRY_MAX_IOU for g in fitted):
-                continue
-            res = self._fit(frame, roi[None, :], score, w, h)
-            if res is not None:
-                fitted.append(_Followed(res[1], score, res[3], index))
-                prior.append(None)
-        # the first frame's search
-        for rois, score in groups:
-            if any(_same_region(rois[0], f.roi) for f in fitted):
-                continue
-            res = self._fit(frame, rois, score, w, h)
-            if res is not None:
-                fitted.append(_Followed(res[1], score, res[3], index))
-                prior.append(None)
-        # one per person among the fits (two followed regions can converge on one person: the
-        # other one is carried) ...
-        keep = one_box_per_person([f.person for f in fitted], self.config.duplicate_iou)
-        people = [fitted[i] for i in keep]
-        carried += [p for i, p in enumerate(prior) if i not in keep and p is not None]
-        # ... then the carried ones that no fit covers, while they are recent and in view
-        limit = self.realtime.landmark_every + self.realtime.carry_frames
-        for f in carried:
-            box = f.person.bbox
-            if index - f.fitted_at > limit or box[2] <= 1 or box[0] >= w - 2:
-                continue
-            if all(box_iou(box, g.person.bbox) < CARRY_MAX_IOU for g in people):
-                people.append(f)
-        self._people = people
-        return [f.person for f in people]
+        self._fits.append(len(jobs) + len(due))
+        self.last_rejections = rejected
+        self.last_timing = {"detection": t1 - t0, "landmarks": t2 - t1}
+        self._frame_index += 1
+        return [f.person for f in self._people]
 
 
-#: Windows the search thread runs before it publishes what they found.
-SEARCH_BATCH = 6
+def _associate(predicted: list[NDArray[np.float64]], boxes: NDArray[np.float64]) -> tuple[dict[int, int], list[int]]:
+    """Followed person -> this frame's box (Hungarian on IoU, >= 0.3), and the boxes nobody follows."""
+    if not predicted or not len(boxes):
+        return {}, list(range(len(boxes)))
+    from scipy.optimize import linear_sum_assignment
+
+    iou = np.array([[box_iou(p, b) for b in boxes] for p in predicted])
+    rows, cols = linear_sum_assignment(-iou)
+    matched = {int(r): int(c) for r, c in zip(rows, cols, strict=True) if iou[r, c] >= 0.3}
+    taken = set(matched.values())
+    # a box lying mostly on a followed person's (a second box on one person) is not a new person
+    new = [j for j in range(len(boxes)) if j not in taken and iou[:, j].max() < 0.5]
+    return matched, new
 
 
-def search_order(
-    windows: list[tuple[int, int, int, int]], frame: NDArray[np.uint8], previous: NDArray[np.uint8] | None
-) -> list[tuple[int, int, int, int]]:
-    """The search windows, whole frame first, then by where people appear: the share of the window
-    where the image changed since the previous search (a person walking in, a car's motion), plus a
-    bonus for windows on the left and right edges (where people enter the view)."""
-    if len(windows) <= 1:
-        return list(windows)
-    h, w = frame.shape[:2]
-    change = None
-    if previous is not None and previous.shape == frame.shape:
-        small = (max(1, w // 8), max(1, h // 8))
-        import cv2
-
-        a = cv2.resize(frame, small, interpolation=cv2.INTER_AREA).astype(np.int16)
-        b = cv2.resize(previous, small, interpolation=cv2.INTER_AREA).astype(np.int16)
-        change = (np.abs(a - b).max(axis=2) > 20).astype(float)
-
-    def priority(win: tuple[int, int, int, int]) -> float:
-        x0, y0, x1, y1 = win
-        edge = 0.5 if x0 <= 0 or x1 >= w else 0.0
-        if change is None:
-            return edge
-        cut = change[y0 // 8 : max(y0 // 8 + 1, y1 // 8), x0 // 8 : max(x0 // 8 + 1, x1 // 8)]
-        return edge + float(cut.mean()) if cut.size else edge
-
-    rest = sorted(windows[1:], key=priority, reverse=True)
-    return [windows[0], *rest]
+def _centre(box: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2])
 
 
-#: A carried person is dropped when a fit of this frame overlaps it this much (the same person).
-CARRY_MAX_IOU = 0.3
-
-
-def _velocity(f: _Followed, person: Person, index: int) -> NDArray[np.float64]:
-    """Pixels per frame from ``f``'s last fit to ``person``; zero when the box jumped by more than
-    half its height (the fit landed on someone else), capped at a tenth of the height per frame
-    (a brisk walk seen at 10 frames/s, with the camera's own motion)."""
-    height = float(person.bbox[3] - person.bbox[1])
-    step = _centre(person) - _centre(f.fitted)
-    if float(np.hypot(*step)) > 0.5 * height:
-        return np.zeros(2)
-    v = step / max(1, index - f.fitted_at)
+def _capped(v: NDArray[np.float64], box: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A velocity (px per frame) capped at a tenth of the box's height."""
+    cap = 0.1 * float(box[3] - box[1])
     speed = float(np.hypot(*v))
-    return v if speed <= 0.1 * height else v * (0.1 * height / speed)
+    return v if speed <= cap else v * (cap / speed)
 
 
-def _centre(p: Person) -> NDArray[np.float64]:
-    return np.array([(p.bbox[0] + p.bbox[2]) / 2, (p.bbox[1] + p.bbox[3]) / 2])
+def _shifted(box: NDArray[np.float64], v: NDArray[np.float64], w: int, h: int) -> NDArray[np.float64]:
+    out = box + np.r_[v, v]
+    dx = -min(0.0, out[0]) - max(0.0, out[2] - (w - 1))
+    dy = -min(0.0, out[1]) - max(0.0, out[3] - (h - 1))
+    return out + np.array([dx, dy, dx, dy])
 
 
-def _moved(p: Person, shift: NDArray[np.float64], w: int, h: int) -> Person:
-    """``p`` (as last fitted) moved by ``shift`` pixels, box kept inside the image."""
-    dx, dy = float(shift[0]), float(shift[1])
-    x1, y1, x2, y2 = p.bbox
-    bw, bh = x2 - x1, y2 - y1
-    nx1 = float(np.clip(x1 + dx, 0.0, w - 1.0 - min(bw, w - 2.0)))
-    ny1 = float(np.clip(y1 + dy, 0.0, h - 1.0 - min(bh, h - 2.0)))
-    dx, dy = nx1 - x1, ny1 - y1
+def _carried(f: _Followed, index: int, w: int, h: int) -> Person:
+    """This frame's person of ``f``: its fit if fitted now, else the last fit's keypoints moved and
+    scaled from that fit's box onto this frame's box (``extra["carried"]``; ``extra["predicted"]``
+    when the detector did not box the person on this frame either)."""
+    p = f.fitted
+    if f.fitted_at == index and np.allclose(p.bbox, f.box):
+        return p
+    old, new = p.bbox, f.box
+    sx = (new[2] - new[0]) / max(old[2] - old[0], 1e-6)
+    sy = (new[3] - new[1]) / max(old[3] - old[1], 1e-6)
+    scale = np.array([sx, sy])
+
+    def move(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (xy - old[:2]) * scale + new[:2]
+
     extra = dict(p.extra)
     if "blazepose" in extra:
         lm = extra["blazepose"].copy()
-        lm[:, 0] += dx
-        lm[:, 1] += dy
+        lm[:, :2] = move(lm[:, :2])
         extra["blazepose"] = lm
-    extra["predicted"] = True
-    return Person(
-        bbox=np.array([x1 + dx, y1 + dy, x2 + dx, y2 + dy]),
-        keypoints=p.keypoints + np.array([dx, dy]),
-        confidences=p.confidences,
-        score=p.score,
-        extra=extra,
-    )
+    extra["carried"] = True
+    if f.seen_at != index:
+        extra["predicted"] = True
+    return Person(bbox=new.copy(), keypoints=move(p.keypoints), confidences=p.confidences, score=p.score, extra=extra)

@@ -82,13 +82,19 @@ def _label_layout(
     size = 0.4 * scale
     texts, boxes, sizes = [], [], []
     for rec, label in zip(records, phone_labels, strict=True):
-        text = f"{rec.get('name', rec['track_id'])} {rec['trust']:.2f} {label}"
+        trust = rec["trust"]  # None: a person carried under a new track ID, no trust yet
+        text = f"{rec.get('name', rec['track_id'])} {'-' if trust is None else f'{trust:.2f}'} {label}"
         (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, thick)
         chip = th + base + 3 if rec.get("colour") is not None else 0
         boxes.append(tuple(round(v) for v in rec["bbox"][:4]))
         texts.append((text, base, chip))
         sizes.append((tw + 4 + chip, th + base + 3))
     return texts, place_labels(boxes, sizes, shape[1], shape[0]), thick, size  # type: ignore[arg-type]
+
+
+def _box_colour(trust: float | None) -> tuple[int, int, int]:
+    """The box's colour by trust; grey for a person with no trust yet."""
+    return trust_colour(trust) if trust is not None else (160, 160, 160)
 
 
 def label_rects(shape: tuple[int, ...], records: Sequence[dict], phone_labels: Sequence[str]) -> list[Rect]:
@@ -114,7 +120,8 @@ def annotate(
     texts, rects, thick, size = _label_layout(img.shape, records, phone_labels)
     for rec, kp in zip(records, keypoints, strict=True):
         x1, y1, x2, y2 = (round(v) for v in rec["bbox"])
-        colour = trust_colour(rec["trust"])
+        trust = rec["trust"]  # None: a person carried under a new track ID, no trust yet
+        colour = _box_colour(trust)
         eye = _eye_colour(rec["eye_contact"] if rec["eye_contact"] is not None else 0.0)
         for a, b in SKELETON:
             pa, pb = kp[a], kp[b]
@@ -123,7 +130,7 @@ def annotate(
         cv2.rectangle(img, (x1, y1), (x2, y2), colour, thick + 1)
     # labels last, over every box and skeleton, each at a free place near its own box
     for rec, (text, base, chip), (lx1, ly1, lx2, ly2) in zip(records, texts, rects, strict=True):
-        colour, person = trust_colour(rec["trust"]), rec.get("colour")
+        colour, person = _box_colour(rec["trust"]), rec.get("colour")
         cv2.rectangle(img, (lx1, ly1), (lx2, ly2), colour, -1)
         if chip:
             cv2.rectangle(img, (lx1, ly1), (lx1 + chip - 1, ly2), tuple(int(c) for c in person), -1)

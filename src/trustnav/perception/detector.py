@@ -1,0 +1,283 @@
+"""Person proposals from a learned detector: YOLOX-Nano (Ge et al., 2021; Apache-2.0) on onnxruntime.
+
+The model is the authors' released ONNX export (``yolox_nano.onnx``, 3.6 MB). Input 1 x 3 x S x S
+float32 (S = 416 in the release): the frame in BGR, 0-255, resized with its aspect kept into the
+top-left corner of a canvas filled with 114. Output 1 x A x 85 per anchor over strides 8, 16, 32:
+centre offsets and log sizes in grid units, objectness and 80 class scores (sigmoided already).
+Decoding and non-maximum suppression run in numpy and OpenCV (``cv2.dnn.NMSBoxes``); only COCO's
+person class (0) is kept. onnxruntime runs it on one intra-op thread by default (on two cores the
+frame loop and the landmark model need the other).
+
+The model file is found as the LOOKING weights are (:func:`resolve_model`): a path given; else
+``../shared/models/yolox/`` of a development checkout; ``$TRUSTNAV_YOLOX_MODEL``; the user cache
+(``~/.cache/trustnav``); else a one-time download from its public URL, announced on stderr. A path
+that is given is never replaced by a download: a missing or unreadable file is one line naming the
+file and how to pass another.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import sys
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from trustnav.perception.types import check_frame
+
+__all__ = [
+    "MODEL_NAME",
+    "ONNXRUNTIME_VERSION",
+    "YOLOX_SHA256",
+    "YOLOX_URL",
+    "PersonDetector",
+    "resolve_model",
+]
+
+YOLOX_URL = "https://github.com/Megvii-BaseDetection/YOLOX/releases/download/0.1.1rc0/yolox_nano.onnx"
+YOLOX_SHA256 = "e8af074932d4ed7e232278e3055cefcdea3edf178874a3694ae292649fb464dd"
+MODEL_NAME = "yolox_nano.onnx"
+MODEL_ENV = "TRUSTNAV_YOLOX_MODEL"
+MODEL_HINT = f"pass --detector-model FILE (Python: PersonDetector(FILE)) or set {MODEL_ENV}"
+ONNXRUNTIME_VERSION = "1.23.2"
+#: COCO's class index of a person in the detector's 80 scores.
+PERSON_CLASS = 0
+STRIDES = (8, 16, 32)
+PAD_VALUE = 114
+
+
+def _candidates() -> tuple[list[Path], Path]:
+    """Where the model is looked for, in order (checkout, environment, cache), and the cache."""
+    candidates: list[Path] = []
+    here = Path(__file__).resolve()
+    for root in (Path.cwd(), *here.parents):
+        candidates.append(root.parent / "shared" / "models" / "yolox" / MODEL_NAME)
+    if os.environ.get(MODEL_ENV):
+        candidates.append(Path(os.environ[MODEL_ENV]))
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "trustnav" / MODEL_NAME
+    candidates.append(cache)
+    return list(dict.fromkeys(candidates)), cache
+
+
+def _download(url: str, dest: Path, sha256: str, timeout: float = 60.0) -> None:
+    """Fetch ``url`` into ``dest`` through a .part file, checking its sha256 (a failure leaves nothing)."""
+    tmp = dest.with_suffix(".part")
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        digest = hashlib.sha256()
+        with urllib.request.urlopen(url, timeout=timeout) as resp, open(tmp, "wb") as fh:
+            while chunk := resp.read(1 << 16):
+                digest.update(chunk)
+                fh.write(chunk)
+        if digest.hexdigest() != sha256:
+            raise ValueError(f"sha256 {digest.hexdigest()[:12]}... is not the release's {sha256[:12]}...")
+        tmp.replace(dest)
+    except (OSError, ValueError) as exc:  # URLError, HTTPError and timeouts are OSErrors
+        tmp.unlink(missing_ok=True)
+        reason = getattr(exc, "reason", None) or exc
+        raise FileNotFoundError(
+            f"person detector {MODEL_NAME} not found locally and the download from {url} failed "
+            f"({reason}); {MODEL_HINT}"
+        ) from None
+
+
+def resolve_model(path: str | Path | None = None, *, download: bool = True) -> Path:
+    """The YOLOX-Nano file: ``path`` (never replaced by a download); else ``../shared/models/yolox/``
+    of a checkout, ``$TRUSTNAV_YOLOX_MODEL``, the user cache; else, with ``download``, fetched once
+    from :data:`YOLOX_URL` into the cache (sha256 checked), saying so on stderr.
+    Raises FileNotFoundError with a one-line hint when the file cannot be had."""
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            what = "a folder, not a file" if p.is_dir() else "no such file"
+            raise FileNotFoundError(
+                f"person detector model not found at {p} ({what}; expected {MODEL_NAME}); {MODEL_HINT}"
+            )
+        return p
+    candidates, cache = _candidates()
+    for c in candidates:
+        if c.is_file():
+            return c
+    if not download:
+        raise FileNotFoundError(
+            f"person detector {MODEL_NAME} not found (looked in {candidates[0]}, ..., {cache}); {MODEL_HINT}, "
+            f"or allow the download from {YOLOX_URL}"
+        )
+    print(f"trustnav: downloading the person detector YOLOX-Nano (3.6 MB) once to {cache}", file=sys.stderr)
+    _download(YOLOX_URL, cache, YOLOX_SHA256)
+    return cache
+
+
+def _load_onnxruntime() -> Any:
+    try:
+        import onnxruntime
+    except ImportError as exc:  # a dependency of trustnav; missing only in a broken environment
+        raise ImportError(
+            f"the person detector needs onnxruntime=={ONNXRUNTIME_VERSION}; install it with "
+            f"`pip install onnxruntime=={ONNXRUNTIME_VERSION}`"
+        ) from exc
+    return onnxruntime
+
+
+class PersonDetector:
+    """YOLOX-Nano person boxes for an RGB frame (module docstring).
+
+    ``model``: the ONNX file (None: :func:`resolve_model`; its input fixes the square network
+    input S, 416 for the release); ``min_score``: objectness x person
+    score kept; ``nms_iou``: overlap at which NMS merges two boxes; ``threads``: onnxruntime's
+    intra-op threads; ``tile_below``: frames the network would see smaller than this scale are also
+    searched in square windows (:meth:`windows`). Calling it returns (boxes (N, 4) [x1, y1, x2, y2]
+    in frame pixels, scores (N,)), best first; ``last_seconds`` holds the latest call's time in the network.
+    """
+
+    def __init__(
+        self,
+        model: str | Path | None = None,
+        *,
+        min_score: float = 0.25,
+        nms_iou: float = 0.45,
+        threads: int = 1,
+        tile_below: float = 0.5,
+        download: bool = True,
+    ) -> None:
+        if not 0.0 < min_score < 1.0:
+            raise ValueError(f"min_score must be in (0, 1), got {min_score!r}")
+        if not 0.0 < nms_iou <= 1.0:
+            raise ValueError(f"nms_iou must be in (0, 1], got {nms_iou!r}")
+        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+            raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
+        if not 0.0 <= tile_below <= 1.0:
+            raise ValueError(f"tile_below must be in [0, 1] (0: the whole frame only), got {tile_below!r}")
+        self.tile_below = float(tile_below)
+        self.path = resolve_model(model, download=download)
+        self.min_score = float(min_score)
+        self.nms_iou = float(nms_iou)
+        ort = _load_onnxruntime()
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3
+        try:
+            self._session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types for a bad file
+            first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+            raise ValueError(
+                f"person detector model {self.path}: not a readable ONNX model ({first}); {MODEL_HINT}"
+            ) from None
+        inputs = self._session.get_inputs()
+        shape = inputs[0].shape if len(inputs) == 1 else []
+        if len(shape) != 4 or shape[1] != 3 or not isinstance(shape[2], int) or shape[2] != shape[3] or shape[2] % 32:
+            raise ValueError(
+                f"person detector model {self.path}: expected one input 1 x 3 x S x S with S a multiple of 32 "
+                f"(YOLOX), got {[tuple(i.shape) for i in inputs]}; {MODEL_HINT}"
+            )
+        self._input = inputs[0].name
+        self.input_size = int(shape[2])
+        self._grid, self._stride = _anchors(self.input_size)
+        self.last_seconds = 0.0
+
+    def windows(self, h: int, w: int) -> list[tuple[int, int, int, int]]:
+        """Where the network looks: the whole frame, and where that shrinks the frame below
+        ``tile_below`` (a 1280 x 720 frame to 0.33), also square windows as tall as a landscape frame
+        across its width (overlapping by at least a fifth), so that people of ~100 px keep ~40 px."""
+        out = [(0, 0, w, h)]
+        if self.input_size / max(h, w) >= self.tile_below or w <= h:
+            return out  # a portrait frame is not cut across: its windows would halve a standing person
+        n = math.ceil((w - h) / (0.8 * h)) + 1
+        out += [(int(x), 0, int(x) + h, h) for x in np.linspace(0, w - h, n).round().astype(int)]
+        return out
+
+    def __call__(self, frame: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Person boxes and scores of one RGB frame (H x W x 3 uint8), best first."""
+        import time
+
+        import cv2
+
+        frame = check_frame(frame)
+        h, w = frame.shape[:2]
+        t0 = time.perf_counter()
+        found = [self._window(frame, win) for win in self.windows(h, w)]
+        self.last_seconds = time.perf_counter() - t0
+        boxes = np.concatenate([b for b, _ in found])
+        scores = np.concatenate([s for _, s in found])
+        if len(found) == 1 or not len(boxes):
+            return boxes, scores
+        xywh = np.concatenate([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]], axis=1)
+        idx = np.asarray(cv2.dnn.NMSBoxes(xywh.tolist(), scores.tolist(), self.min_score, self.nms_iou), dtype=int)
+        idx = idx.reshape(-1)
+        idx = idx[np.argsort(-scores[idx], kind="stable")]
+        return boxes[idx], scores[idx]
+
+    def _window(
+        self, frame: NDArray[np.uint8], win: tuple[int, int, int, int]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        import cv2
+
+        x0, y0, x1, y1 = win
+        crop = frame[y0:y1, x0:x1]
+        h, w = crop.shape[:2]
+        s = self.input_size
+        ratio = min(s / h, s / w)
+        nh, nw = max(1, round(h * ratio)), max(1, round(w * ratio))
+        canvas = np.full((s, s, 3), PAD_VALUE, dtype=np.uint8)
+        canvas[:nh, :nw] = cv2.resize(crop, (nw, nh), interpolation=cv2.INTER_AREA)[:, :, ::-1]  # RGB -> BGR
+        blob = canvas.transpose(2, 0, 1)[None].astype(np.float32)
+        out = self._session.run(None, {self._input: blob})[0][0]
+        if out.ndim != 2 or out.shape != (len(self._grid), 85):
+            raise ValueError(f"person detector model {self.path}: output {out.shape}, expected ({len(self._grid)}, 85)")
+        boxes, scores = decode(out, self._grid, self._stride, ratio, (w, h), self.min_score, self.nms_iou)
+        if (x0, y0, x1, y1) != (0, 0, frame.shape[1], frame.shape[0]) and len(boxes):
+            # a box cut by a window's inner edge is a part of a person the whole frame or the next window holds
+            inner = ((boxes[:, 0] <= 1) & (x0 > 0)) | ((boxes[:, 2] >= w - 2) & (x1 < frame.shape[1]))
+            inner |= ((boxes[:, 1] <= 1) & (y0 > 0)) | ((boxes[:, 3] >= h - 2) & (y1 < frame.shape[0]))
+            boxes, scores = boxes[~inner], scores[~inner]
+        return boxes + np.array([x0, y0, x0, y0], dtype=np.float64), scores
+
+
+def _anchors(size: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Grid cells (A, 2) and their strides (A, 1) in the detector's anchor order."""
+    grids, strides = [], []
+    for stride in STRIDES:
+        n = size // stride
+        ys, xs = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        grids.append(np.stack([xs.ravel(), ys.ravel()], axis=1))
+        strides.append(np.full((n * n, 1), stride))
+    return np.concatenate(grids).astype(np.float64), np.concatenate(strides).astype(np.float64)
+
+
+def decode(
+    out: NDArray[np.floating],
+    grid: NDArray[np.float64],
+    stride: NDArray[np.float64],
+    ratio: float,
+    size: tuple[int, int],
+    min_score: float,
+    nms_iou: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """YOLOX's raw output (A, 85) to person boxes in frame pixels and scores, after NMS.
+
+    centre = (cell + offset) x stride, size = exp(log size) x stride (network pixels), divided by the
+    resize ``ratio``; score = objectness x person score; boxes clipped to the frame ``size`` (w, h)."""
+    import cv2
+
+    score = out[:, 4] * out[:, 5 + PERSON_CLASS]
+    keep = score >= min_score
+    if not keep.any():
+        return np.zeros((0, 4)), np.zeros(0)
+    o = out[keep].astype(np.float64)
+    centre = (o[:, :2] + grid[keep]) * stride[keep] / ratio
+    half = np.exp(np.clip(o[:, 2:4], -10.0, 10.0)) * stride[keep] / ratio / 2.0
+    boxes = np.concatenate([centre - half, centre + half], axis=1)
+    boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0.0, size[0] - 1.0)
+    boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0.0, size[1] - 1.0)
+    scores = score[keep].astype(np.float64)
+    xywh = np.concatenate([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]], axis=1)
+    idx = cv2.dnn.NMSBoxes(xywh.tolist(), scores.tolist(), min_score, nms_iou)
+    idx = np.asarray(idx, dtype=int).reshape(-1)
+    idx = idx[np.argsort(-scores[idx], kind="stable")]
+    return boxes[idx], scores[idx]

@@ -1,0 +1,250 @@
+"""The learned person detector (issue 35): model file resolution and errors, decoding, and the
+geometry gate that keeps only people standing on the ground at a human size."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trustnav.perception import detector as det
+from trustnav.perception.ground_gate import GateConfig, HorizonFit, gate_boxes
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+MODEL = SHARED / "models" / "yolox" / "yolox_nano.onnx"
+needs_model = pytest.mark.skipif(not MODEL.is_file(), reason="needs ../shared/models/yolox/yolox_nano.onnx")
+
+
+def _no_download(*args, **kwargs):
+    raise AssertionError("no download may be tried")
+
+
+def test_a_missing_model_path_is_one_line_naming_it_and_never_downloaded(tmp_path, monkeypatch):
+    monkeypatch.setattr(det.urllib.request, "urlopen", _no_download)
+    with pytest.raises(FileNotFoundError) as err:
+        det.resolve_model(tmp_path / "nope.onnx")
+    msg = str(err.value)
+    assert "\n" not in msg and str(tmp_path / "nope.onnx") in msg and "--detector-model" in msg
+    with pytest.raises(FileNotFoundError, match="a folder, not a file"):
+        det.resolve_model(tmp_path)
+
+
+def test_a_corrupt_model_file_is_one_line_naming_it(tmp_path, monkeypatch):
+    monkeypatch.setattr(det.urllib.request, "urlopen", _no_download)
+    bad = tmp_path / "yolox_nano.onnx"
+    bad.write_bytes(b"not an onnx model")
+    with pytest.raises(ValueError) as err:
+        det.PersonDetector(bad)
+    msg = str(err.value)
+    assert "\n" not in msg and str(bad) in msg and "TRUSTNAV_YOLOX_MODEL" in msg
+
+
+class _Response(io.BytesIO):
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_without_a_local_file_the_model_is_downloaded_once_and_checked(tmp_path, monkeypatch, capsys):
+    payload = b"model bytes"
+    cache = tmp_path / "cache" / "trustnav" / det.MODEL_NAME
+    monkeypatch.setattr(det, "_candidates", lambda: ([tmp_path / "none.onnx", cache], cache))
+    monkeypatch.setattr(det.urllib.request, "urlopen", lambda url, timeout: _Response(payload))
+    with pytest.raises(FileNotFoundError, match="sha256"):  # not the release's file: nothing kept
+        det.resolve_model()
+    assert not cache.exists() and not cache.with_suffix(".part").exists()
+    monkeypatch.setattr(det, "YOLOX_SHA256", hashlib.sha256(payload).hexdigest())
+    assert det.resolve_model() == cache and cache.read_bytes() == payload
+    assert "downloading" in capsys.readouterr().err
+    monkeypatch.setattr(det.urllib.request, "urlopen", _no_download)
+    assert det.resolve_model() == cache  # the cached copy, no second download
+    cache.unlink()
+    with pytest.raises(FileNotFoundError, match="allow the download"):
+        det.resolve_model(download=False)
+
+
+def test_the_environment_variable_is_a_place_the_model_is_found(tmp_path, monkeypatch):
+    f = tmp_path / "my.onnx"
+    f.write_bytes(b"x")
+    monkeypatch.setenv(det.MODEL_ENV, str(f))
+    candidates, _ = det._candidates()
+    assert f in candidates
+
+
+def test_decode_places_boxes_and_keeps_only_people():
+    grid, stride = det._anchors(416)
+    out = np.zeros((len(grid), 85), dtype=np.float32)
+    # a person centred on cell (10, 20) of stride 8, 40 x 80 network px; a duplicate beside it
+    k = 20 * 52 + 10
+    out[k, :4] = [0.5, 0.5, np.log(40 / 8), np.log(80 / 8)]
+    out[k, 4], out[k, 5] = 0.9, 0.9
+    out[k + 1, :4] = [0.0, 0.5, np.log(40 / 8), np.log(80 / 8)]
+    out[k + 1, 4], out[k + 1, 5] = 0.9, 0.6
+    # a confident cell phone (class 67) is not a person
+    out[k + 200, 4], out[k + 200, 5 + 67] = 0.99, 0.99
+    boxes, scores = det.decode(out, grid, stride, 0.5, (832, 832), 0.25, 0.45)
+    assert len(boxes) == 1 and scores[0] == pytest.approx(0.81, abs=1e-6)
+    cx, cy = (10.5 * 8) / 0.5, (20.5 * 8) / 0.5
+    assert boxes[0] == pytest.approx([cx - 40, cy - 80, cx + 40, cy + 80], abs=1e-3)
+
+
+@needs_model
+def test_the_detector_boxes_the_walkers_of_a_real_frame():
+    import cv2
+
+    frame = cv2.imread(str(SHARED / "data" / "sequences" / "walk_a" / "image_00005310_0.png"))[:, :, ::-1].copy()
+    d = det.PersonDetector()
+    boxes, scores = d(frame)
+    # the labelled people of this frame (benchmarks/data/labels/walk_a.json)
+    for label in ([527, 165, 570, 300], [437, 167, 470, 257], [485, 157, 520, 245]):
+        ious = [_iou(b, label) for b in boxes]
+        assert max(ious) >= 0.5
+    assert np.all(np.diff(scores) <= 0) and np.all((scores >= d.min_score) & (scores <= 1))
+
+
+def _iou(a, b) -> float:
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
+# -- the geometry gate ---------------------------------------------------------------------------
+
+
+def _person(feet: float, v0: float, k: float, x: float = 100.0, height_m: float = 1.7) -> np.ndarray:
+    h = k * (feet - v0) * height_m / 1.7
+    return np.array([x, feet - h, x + 0.35 * h, feet])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    v0=st.floats(100, 400),
+    k=st.floats(0.4, 1.6),
+    feet=st.lists(st.floats(0, 1), min_size=3, max_size=8, unique=True),
+    heights=st.lists(st.floats(1.55, 1.85), min_size=8, max_size=8),
+)
+def test_the_horizon_is_recovered_from_people_on_one_ground(v0, k, feet, heights):
+    fit = HorizonFit()
+    rows = [v0 + 30 + f * 300 for f in feet]
+    if max(rows) - min(rows) < 20:
+        return
+    for row, hm in zip(rows, heights, strict=False):
+        box = _person(row, v0, k, height_m=hm)
+        fit.add(box[3], box[3] - box[1])
+    got = fit.fit()
+    assert got is not None
+    v0_fit, k_fit, _ = got
+    # heights within +-9 % of the mean: the horizon within a third of the people's mean height
+    mean_h = np.mean([k * (r - v0) for r in rows])
+    assert abs(v0_fit - v0) < 0.35 * mean_h + 5 and 0.7 * k < k_fit < 1.4 * k
+
+
+def test_a_logo_on_the_dashboard_and_a_box_above_the_horizon_are_rejected_with_reasons():
+    v0, k = 240.0, 1.1
+    people = [_person(f, v0, k, x=60.0 * i) for i, f in enumerate((300.0, 340.0, 380.0, 420.0))]
+    logo = np.array([300.0, 440.0, 330.0, 470.0])  # 30 px tall at row 470: a person there is ~250 px
+    sky = np.array([500.0, 100.0, 520.0, 150.0])  # feet above the horizon
+    boxes = [*people, logo, sky]
+    keep, rejected = gate_boxes(boxes, [0.9] * len(boxes), (640, 480))
+    assert keep == [0, 1, 2, 3]
+    assert len(rejected) == 2 and all(r.reason for r in rejected)
+    assert "above the horizon" in rejected[1].reason and "px tall" in rejected[0].reason
+
+
+def test_without_a_fit_the_prior_rejects_only_what_no_horizon_allows():
+    # one person and one logo: no fit; the logo at the image's bottom is far too small for any horizon
+    person = np.array([300.0, 150.0, 360.0, 330.0])
+    logo = np.array([40.0, 440.0, 90.0, 470.0])
+    keep, rejected = gate_boxes([person, logo], [0.9, 0.9], (640, 480), config=GateConfig())
+    assert keep == [0] and len(rejected) == 1
+    cut = np.array([200.0, 300.0, 260.0, 479.0])  # cut by the frame's bottom: feet unseen, not judged
+    keep, _ = gate_boxes([cut], [0.9], (640, 480))
+    assert keep == [0]
+
+
+def test_with_the_camera_known_heights_follow_the_feet_row():
+    from trustnav.geometry.camera import CameraSpec
+
+    cam = CameraSpec(width=640, height=480, fov_deg=70.0, up=1.4).pose([0.0, 0.0], 0.0)
+    # a 1.7 m person 10 m ahead, projected; a 1.7 m "person" whose box is 3x too small; a box in the sky
+    feet_w = np.array([[11.5, 0.0, 0.0], [11.5, 0.0, 1.7]])
+    uv, _ = cam.project(feet_w)
+    real = np.array([uv[0, 0] - 15, uv[1, 1], uv[0, 0] + 15, uv[0, 1]])
+    small = real.copy()
+    small[1] = real[3] - (real[3] - real[1]) / 3
+    sky = np.array([100.0, 50.0, 120.0, 100.0])
+    keep, rejected = gate_boxes([real, small, sky], [0.9] * 3, (640, 480), camera=cam)
+    assert keep == [0] and len(rejected) == 2
+    assert "camera" in rejected[0].reason and "horizon" in rejected[1].reason
+
+
+# -- carried people in the pipeline ---------------------------------------------------------------
+
+
+def test_people_carried_between_fits_are_not_judged_twice():
+    """Issue 35's real-time backend carries a person's last keypoints between landmark fits
+    (``extra["carried"]``): the cues run only on people fitted on the frame, a carried person shows
+    its track's last values, and trust gets no observation of it unless its track is new to it."""
+    from trustnav.perception.pipeline import PerceptionPipeline
+    from trustnav.perception.tracking import PersonTracker
+    from trustnav.perception.types import Person
+
+    kp = np.column_stack([np.linspace(110, 130, 17), np.linspace(110, 290, 17)])
+
+    def person(dx: float, carried: bool) -> Person:
+        extra = {"carried": True} if carried else {}
+        return Person(np.array([100 + dx, 100, 140 + dx, 300]), kp + [dx, 0], np.ones(17), 0.9, extra)
+
+    class Backend:
+        def __init__(self) -> None:
+            self.frames = [[person(0, False)], [person(2, True)], [person(4, True)], [person(6, False)]]
+
+        def __call__(self, frame):
+            return self.frames.pop(0)
+
+    class Counting:
+        name = "eye_contact"
+
+        def __init__(self) -> None:
+            self.judged = 0
+
+        def __call__(self, frame, people):
+            self.judged += len(people)
+            return [0.1 * self.judged] * len(people)
+
+    cue = Counting()
+    pipeline = PerceptionPipeline(Backend(), PersonTracker(fps=10.0), cues=[cue])
+    frame = np.zeros((400, 400, 3), dtype=np.uint8)
+    outs = [pipeline(frame, time=k / 10) for k in range(4)]
+    assert cue.judged == 2  # frames 0 and 3 only
+    assert [round(o[0].eye_contact, 2) for o in outs] == [0.1, 0.1, 0.1, 0.2]  # carried: the last value
+    tid = outs[0][0].track_id
+    assert PerceptionPipeline.observations(outs[1], 0.1) == []
+    assert PerceptionPipeline.observations(outs[1], 0.1, known={tid}) == []
+    assert len(PerceptionPipeline.observations(outs[1], 0.1, known=set())) == 1  # a track new to trust
+    assert len(PerceptionPipeline.observations(outs[3], 0.3, known={tid})) == 1
+
+
+@pytest.mark.slow
+@needs_model
+def test_estimate_reports_the_boxes_it_turned_down(sequences, looking_weights, out_dir, capsys):
+    """trustnav estimate writes rejected.json: each detector box the landmark model did not confirm
+    or the geometry gate turned down, with its frame, box, score and reason, and counts them."""
+    import json
+
+    from trustnav.cli import main
+
+    args = ["estimate", str(sequences / "phone_a"), "--out", str(out_dir), "--no-images"]
+    assert main([*args, "--looking-weights", str(looking_weights)]) == 0
+    rejected = json.loads((out_dir / "rejected.json").read_text())
+    assert rejected and all({"sequence", "frame", "bbox", "score", "reason"} <= set(r) for r in rejected)
+    assert all(r["reason"] and len(r["bbox"]) == 4 and 0 < r["score"] <= 1 for r in rejected)
+    assert f"{len(rejected)} detector boxes rejected" in capsys.readouterr().out
