@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
+from trustnav.control.caution import caution_bound
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -101,7 +102,7 @@ class MpcController:
         # the whole step in one compiled call where it applies (see _whole_step)
         self._whole = (
             type(self.model) in (SingleIntegrator, KinematicBicycle) and self.config.latency <= 0
-            and self._yielder is None and not self.problem.n_user
+            and self._yielder is None and not self.problem.n_user and self.config.caution is None
         )  # fmt: skip
         self._state_shape = (self.model.nx,)
         self._warm_up()
@@ -242,6 +243,8 @@ class MpcController:
                 capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
                 p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
+        if self.config.caution is not None:  # caution: the speed bound of who might step out
+            detour = self._caution(x, peds, tr, margins, detour)
         try:
             p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
         finally:
@@ -371,6 +374,39 @@ class MpcController:
             state_violation=limit,
             detour=None if dl is None else dl.note,
         )
+
+    def _caution(self, x, peds, tr, margins, detour: str | None) -> str | None:
+        """Set this step's caution (:mod:`~trustnav.control.caution`): the reference speed the cost
+        tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
+        present speed by at most ``ease`` per step). Returns the step's note."""
+        p, cfg = self.problem, self.config.caution
+        p.speed_cap = math.inf
+        if not len(peds):
+            return detour
+        bicycle = type(self.model) is KinematicBicycle
+        if bicycle:
+            heading = np.array([math.cos(x[2]), math.sin(x[2])])
+            speed = float(x[3])
+        else:  # a planar point: toward the goal its cost tracks
+            goal = getattr(p.cost, "goal", None)
+            if goal is None:
+                return detour
+            heading = np.asarray(goal, dtype=float) - x[:2]
+            n = float(np.hypot(*heading))
+            if n < 1e-9:
+                return detour
+            heading = heading / n
+            speed = float(np.hypot(*self._last_control[:2]))
+        found = caution_bound(cfg, x[:2], heading, peds, tr, self._radii(len(peds), margins))
+        if found is None:
+            return detour
+        cost = p.cost
+        ref = getattr(cost, "reference", None)
+        if ref is not None and hasattr(ref, "v_max"):
+            p.cost = replace(cost, reference=replace(ref, v_max=max(min(ref.v_max, found.speed), 1e-3)))
+        if bicycle:
+            p.speed_cap = max(found.speed, speed - cfg.ease * self.config.dt)
+        return detour or found.note
 
     def _radii(self, n: int, margins: NDArray[np.float64] | None) -> NDArray[np.float64]:
         """Each pedestrian's R plus its uncertainty margin, as the route layers see them."""

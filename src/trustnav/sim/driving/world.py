@@ -23,10 +23,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import (
     BoundedProportionalReference,
+    CautionConfig,
     KinematicBicycle,
     LaneTrackingCost,
     MpcConfig,
     RoadEdgeBarrier,
+    reaction_time,
 )
 from trustnav.geometry.camera import CameraSpec
 from trustnav.perception.localisation import LocaliserConfig
@@ -143,7 +145,13 @@ class ControlSpec:
     ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``, with
     the controller's yielding layer (:mod:`~trustnav.control.yielding`: the car brakes and waits for a
     pedestrian it cannot pass on the road); on by default, ``road_edges = false`` is the paper's
-    controller, which knows no road (docs/drive.md, "Road edges in the controller")."""
+    controller, which knows no road (docs/drive.md, "Road edges in the controller").
+    ``caution`` (on by default; false: the paper's controller): the trust-aware speed bound
+    (:mod:`~trustnav.control.caution`): the car can stop short of the region a pedestrian could
+    reach, at ``caution_walking_speed`` times (1 - trust) ** ``caution_trust_exponent``, before
+    the camera would show a step-out (``caution_confirm_frames`` camera periods plus the
+    perception and command latencies and one control period), braking at
+    ``caution_deceleration``; never below ``caution_pass_speed`` (docs/controller.md)."""
 
     rate: float = 20.0
     dt: float = 0.08
@@ -160,9 +168,21 @@ class ControlSpec:
     road_margin: float = 0.9
     road_gamma: float = 0.5
     road_front: float = 2.0
+    caution: bool = True
+    caution_walking_speed: float = 1.4
+    caution_trust_exponent: float = 2.0
+    caution_deceleration: float = 4.0
+    caution_pass_speed: float = 3.0
+    caution_confirm_frames: float = 2.0
 
     def __post_init__(self) -> None:
         _positive("control rate", self.rate)
+        if not isinstance(self.caution, bool):
+            raise ValueError(f"[control] caution must be true or false, got {self.caution!r}")
+        for name in ("caution_walking_speed", "caution_pass_speed", "caution_confirm_frames"):
+            _positive(f"[control] {name}", getattr(self, name), allow_zero=True)
+        for name in ("caution_trust_exponent", "caution_deceleration"):
+            _positive(f"[control] {name}", getattr(self, name))
         if not isinstance(self.road_edges, bool):
             raise ValueError(f"[control] road_edges must be true or false, got {self.road_edges!r}")
         _positive("road_margin", self.road_margin, allow_zero=True)
@@ -172,9 +192,27 @@ class ControlSpec:
         self.config()  # validates dt, horizon, R, timing, latency
         BoundedProportionalReference(self.reference_gain, self.reference_v_max)
 
-    def config(self) -> MpcConfig:
+    def caution_config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> CautionConfig | None:
+        """The caution of a drive whose camera runs at ``camera_rate`` frames/s with that
+        perception latency (None when ``caution`` is off)."""
+        if not self.caution:
+            return None
+        reaction = reaction_time(camera_rate, self.caution_confirm_frames, perception_latency, self.latency,
+                                 1.0 / self.rate)  # fmt: skip
+        return CautionConfig(
+            reaction=reaction,
+            walking_speed=self.caution_walking_speed,
+            trust_exponent=self.caution_trust_exponent,
+            deceleration=self.caution_deceleration,
+            pass_speed=self.caution_pass_speed,
+        )
+
+    def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> MpcConfig:
+        """The controller's configuration for a camera at ``camera_rate`` frames/s (it sets the
+        caution's reaction time)."""
         extra = {"deadline": self.deadline} if "deadline" in MpcConfig.__dataclass_fields__ else {}
         return MpcConfig(
+            caution=self.caution_config(camera_rate, perception_latency),
             confidence=self.confidence,
             horizon=self.horizon,
             dt=self.dt,

@@ -1,0 +1,122 @@
+"""Trust sets speed: step-outs and kerbs (issue 34).
+
+Variants of ``examples/scenarios/step-out.toml`` (the car at 8 m/s on the one-lane street, the
+camera at 1 frame/s, perceived pedestrian states, keypoint sensing by default), one per seed:
+
+* **step-out**: a pedestrian texting at the kerb (0.1-0.9 m beyond it, 92-106 m along the map)
+  steps straight across the lane at 1.4 m/s when a car that did not slow would be 14-20 m from her;
+* **stays**: the same kerb, the pedestrian attentive (looking at the car) or texting, and staying;
+  beside a **free road** (nobody near it).
+
+For each, with the trust-aware caution (the default) and without it (``caution = false``, the
+paper's controller), prints the true closest approach, the runs below R and below 1 m, the road
+departure, the time to the goal and the median solve time.
+
+    python benchmarks/step_out.py                      # 10 seeds, ~3 min on 2 cores
+    python benchmarks/step_out.py --seeds 20 --rate 10
+    python benchmarks/step_out.py --sensing render --seeds 1 --only step-out
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trustnav.sim.driving import load_drive_scenario, run_drive
+from trustnav.sim.driving.behaviour import BehaviourSpec
+from trustnav.sim.driving.episode import drive_metrics
+
+ROOT = Path(__file__).resolve().parents[1]
+ROAD_X, KERB = 34.25, 3.0  # the road's line near y = 100 and its half width
+
+
+def step_out(base, seed: int, pose: str = "texting", stays: bool = False, free: bool = False):  # type: ignore[no-untyped-def]
+    """The seed's variant (module docstring): kerb offset, place and the step-out's distance
+    drawn from ``seed``."""
+    rng = np.random.default_rng(1000 + seed)
+    y = float(rng.uniform(92.0, 106.0))
+    x = ROAD_X + KERB + float(rng.uniform(0.1, 0.9))
+    distance = float(rng.uniform(14.0, 20.0))
+    start = (base.ego_start[1] - y - distance) / 8.0  # a car that kept 8 m/s is `distance` from her
+    p = base.pedestrians[0]
+    attentive = pose == "attentive"
+    ped = dataclasses.replace(
+        p,
+        position=(70.0 if free else x, y),
+        velocity=(0.0, 0.0) if stays else (-1.4, 0.0),
+        attentive=attentive,
+        pose="attentive" if attentive else "distracted",
+        look_at_camera=attentive,
+        alternative=(),
+        behaviour=None if stays else BehaviourSpec(start_time=max(start, 0.0), moving_pose="texting_walk"),
+    )
+    return dataclasses.replace(base, pedestrians=(ped,), variants=()), distance
+
+
+def run(args: argparse.Namespace) -> dict:
+    base = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
+    renderer = pipeline = None
+    if args.sensing == "render":
+        from trustnav.sim.driving import make_render_sensing
+
+        renderer, pipeline = make_render_sensing()
+    kinds = {
+        "step-out": dict(),
+        "attentive stays": dict(pose="attentive", stays=True),
+        "texting stays": dict(stays=True),
+        "free road": dict(stays=True, free=True),
+    }
+    if args.only:
+        kinds = {k: v for k, v in kinds.items() if k == args.only}
+    out: dict = {"rate": args.rate, "sensing": args.sensing, "rows": []}
+    for kind, kw in kinds.items():
+        for caution in (True, False):
+            rows = []
+            for seed in range(args.seeds):
+                sc, distance = step_out(base, seed, **kw)
+                sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
+                r = run_drive(sc, args.sensing, seed=seed, capture_rate=args.rate, renderer=renderer, pipeline=pipeline)
+                m = drive_metrics(r)
+                ped = m["pedestrians"][0]
+                rows.append(dict(seed=seed, distance=round(distance, 2), min_distance=ped["min_distance"],
+                                 trust=ped["final_trust"], goal=m["time_to_goal"],
+                                 road=m["road_departure_max"], violations=m["margin_violations"],
+                                 solve_ms=m["solve_ms_median"]))  # fmt: skip
+            out["rows"].append(dict(kind=kind, caution=caution, runs=rows))
+            d = np.array([r["min_distance"] for r in rows])
+            goals = [r["goal"] for r in rows if r["goal"] is not None]
+            print(
+                f"{kind:16s} caution={'on ' if caution else 'off'}  closest min {d.min():5.2f} m"
+                f" median {np.median(d):5.2f} m"
+                f"  >= R {int(np.sum(d >= 2.5))}/{len(d)}  < 1 m {int(np.sum(d < 1.0))}"
+                f"  off road {sum(r['road'] > 0 for r in rows)}  goal {len(goals)}/{len(rows)}"
+                f" median {np.median(goals) if goals else float('nan'):5.2f} s"
+                f"  solve median {np.median([r['solve_ms'] for r in rows]):.3f} ms  (load {os.getloadavg()[0]:.1f})",
+                flush=True,
+            )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--rate", type=float, default=1.0)
+    ap.add_argument("--sensing", default="keypoints", choices=("keypoints", "render"))
+    ap.add_argument("--only", default=None, choices=("step-out", "attentive stays", "texting stays", "free road"))
+    ap.add_argument("--json", type=Path, default=None, help="write every run's numbers here")
+    args = ap.parse_args()
+    t0 = time.time()
+    out = run(args)
+    print(f"{time.time() - t0:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
