@@ -74,13 +74,14 @@ def run(args: argparse.Namespace) -> dict:
     }
     if args.only:
         kinds = {k: v for k, v in kinds.items() if k == args.only}
+    overrides = {k: float(v) for k, v in (kv.split("=") for kv in args.set)}
     out: dict = {"rate": args.rate, "sensing": args.sensing, "rows": []}
     for kind, kw in kinds.items():
-        for caution in (True, False):
+        for caution in {"both": (True, False), "on": (True,), "off": (False,)}[args.caution]:
             rows = []
             for seed in range(args.seeds):
                 sc, distance = step_out(base, seed, **kw)
-                sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
+                sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution, **overrides))
                 r = run_drive(sc, args.sensing, seed=seed, capture_rate=args.rate, renderer=renderer, pipeline=pipeline)
                 m = drive_metrics(r)
                 ped = m["pedestrians"][0]
@@ -109,6 +110,8 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1.0)
     ap.add_argument("--sensing", default="keypoints", choices=("keypoints", "render"))
     ap.add_argument("--only", default=None, choices=("step-out", "attentive stays", "texting stays", "free road"))
+    ap.add_argument("--caution", default="both", choices=("both", "on", "off"))
+    ap.add_argument("--set", nargs="*", default=[], help="[control] options, e.g. caution_pass_speed=4")
     ap.add_argument("--json", type=Path, default=None, help="write every run's numbers here")
     args = ap.parse_args()
     t0 = time.time()

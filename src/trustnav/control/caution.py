@@ -69,14 +69,14 @@ class CautionConfig:
     drive derives it from its camera, :func:`reaction_time`), ``walking_speed`` (1.4 m/s: a brisk
     step-out of an untrusted pedestrian), ``trust_exponent`` (2: the reach of trust 0.5 is a
     quarter of trust 0's), ``deceleration`` (4 m/s^2, below the vehicle's 6: the braking the bound
-    counts on), ``pass_speed`` (3 m/s: the floor), ``ease`` (3 m/s^2: how fast a lower bound
+    counts on), ``pass_speed`` (4 m/s: the floor), ``ease`` (3 m/s^2: how fast a lower bound
     brings the speed rows down)."""
 
     reaction: float = 2.15
     walking_speed: float = 1.4
     trust_exponent: float = 2.0
     deceleration: float = 4.0
-    pass_speed: float = 3.0
+    pass_speed: float = 4.0
     ease: float = 3.0
 
     def __post_init__(self) -> None:

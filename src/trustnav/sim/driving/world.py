@@ -172,7 +172,7 @@ class ControlSpec:
     caution_walking_speed: float = 1.4
     caution_trust_exponent: float = 2.0
     caution_deceleration: float = 4.0
-    caution_pass_speed: float = 3.0
+    caution_pass_speed: float = 4.0
     caution_confirm_frames: float = 2.0
 
     def __post_init__(self) -> None:
