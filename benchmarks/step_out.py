@@ -104,6 +104,43 @@ def run(args: argparse.Namespace) -> dict:
     return out
 
 
+def figure(path: Path, seed: int = 0) -> None:
+    """Speed and distance over time on ``examples/scenarios/step-out.toml``: trust-aware with and
+    without caution, and the controller handed constant trust 0 and 1 (``trustnav compare``)."""
+    from trustnav.sim.driving.compare import ConstantTrustWorld
+    from trustnav.sim.driving.episode import DriveSimulation, drive
+    from trustnav.viz.style import legend, new_figure, styled
+
+    base = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
+    runs = []
+    modes = (("trust-aware, caution", True, None), ("trust-aware, no caution (the paper's)", False, None),
+             ("constant trust 0", True, 0.0), ("constant trust 1", True, 1.0))  # fmt: skip
+    for label, caution, trust in modes:
+        sc = dataclasses.replace(base, control=dataclasses.replace(base.control, caution=caution))
+        sim = DriveSimulation(sc, seed=seed)
+        r = drive(sim if trust is None else ConstantTrustWorld(sim, trust), "keypoints")  # type: ignore[arg-type]
+        m = drive_metrics(r)
+        runs.append((label, r, m))
+        print(f"{label:40s} closest {m['pedestrians'][0]['min_distance']:.2f} m  goal {m['time_to_goal']} s")
+    step = base.pedestrians[0].behaviour.start_time  # type: ignore[union-attr]
+    with styled():
+        fig, (ax, bx) = new_figure((7.0, 5.2), 2, 1, sharex=True)
+        for (label, r, m), style in zip(runs, ("-", ":", "--", "-."), strict=True):
+            ax.plot(r.times, r.ego[:, 3], style, label=f"{label}: {m['pedestrians'][0]['min_distance']:.2f} m")
+            bx.plot(r.times, r.distances[:, 0], style)
+        for a in (ax, bx):
+            a.axvline(step, color="grey", lw=0.8)
+        ax.text(step, 0.3, " she steps out", color="grey")
+        bx.axhline(base.control.safety_radius, color="red", lw=0.8)
+        ax.set_ylabel("car speed (m/s)")
+        bx.set_ylabel("distance to her (m)")
+        bx.set_xlabel("time (s)")
+        bx.set_ylim(0, 20)
+        legend(ax, loc="lower right", title="run: closest approach")
+        fig.savefig(path)
+    print(f"wrote {path}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -113,7 +150,11 @@ def main() -> None:
     ap.add_argument("--caution", default="both", choices=("both", "on", "off"))
     ap.add_argument("--set", nargs="*", default=[], help="[control] options, e.g. caution_pass_speed=4")
     ap.add_argument("--json", type=Path, default=None, help="write every run's numbers here")
+    ap.add_argument("--figure", type=Path, default=None, help="only draw speed over time (seed 0) to this PNG")
     args = ap.parse_args()
+    if args.figure:
+        figure(args.figure)
+        return
     t0 = time.time()
     out = run(args)
     print(f"{time.time() - t0:.0f} s")

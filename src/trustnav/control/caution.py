@@ -87,10 +87,12 @@ class CautionConfig:
 @dataclass(frozen=True)
 class CautionDecision:
     """The step's speed bound (m/s), the pedestrian that sets it (index into the step's
-    pedestrians) and a note for the step's report."""
+    pedestrians), how far from that pedestrian the car's line must stay for no bound (``reach``:
+    r + rho, m) and a note for the step's report."""
 
     speed: float
     pedestrian: int
+    reach: float
     note: str
 
 
@@ -128,4 +130,4 @@ def caution_bound(
     assert best is not None
     v, j = best
     note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {float(s[j]):.1f} m ahead"
-    return CautionDecision(v, j, note)
+    return CautionDecision(v, j, float(reach[j]), note)
