@@ -111,23 +111,27 @@ def caution_bound(
     if len(pedestrians) == 0:
         return None
     c = config
-    rel = pedestrians - position
-    s = rel @ heading  # ahead along the path
-    d = np.abs(rel[:, 0] * heading[1] - rel[:, 1] * heading[0])  # beside the path's line
-    rho = c.walking_speed * (1.0 - np.clip(trusts, 0.0, 1.0)) ** c.trust_exponent * c.reaction
-    reach = radii + rho
-    conflict = (s > 0.0) & (d < reach)
-    if not conflict.any():
-        return None
-    best: tuple[float, int] | None = None
+    hx, hy = float(heading[0]), float(heading[1])
+    px, py = float(position[0]), float(position[1])
     t, b = c.reaction, c.deceleration
-    for j in np.flatnonzero(conflict):
-        room = float(s[j] - math.sqrt(reach[j] ** 2 - d[j] ** 2))
-        v = b * (math.sqrt(t * t + 2.0 * max(room, 0.0) / b) - t)
-        v = max(v, c.pass_speed)
+    reach_speed = c.walking_speed * t
+    best: tuple[float, int, float, float] | None = None
+    # plain floats: a step has a few pedestrians, and numpy's per-call cost would dominate
+    for j, ((qx, qy), theta, r) in enumerate(zip(pedestrians.tolist(), trusts.tolist(), radii.tolist(), strict=True)):
+        rx, ry = qx - px, qy - py
+        s = rx * hx + ry * hy  # ahead along the path
+        if s <= 0.0:
+            continue
+        d = abs(rx * hy - ry * hx)  # beside the path's line
+        reach = r + reach_speed * (1.0 - min(max(theta, 0.0), 1.0)) ** c.trust_exponent
+        if d >= reach:
+            continue
+        room = s - math.sqrt(reach * reach - d * d)
+        v = max(b * (math.sqrt(t * t + 2.0 * max(room, 0.0) / b) - t), c.pass_speed)
         if best is None or v < best[0]:
-            best = (v, int(j))
-    assert best is not None
-    v, j = best
-    note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {float(s[j]):.1f} m ahead"
-    return CautionDecision(v, j, float(reach[j]), note)
+            best = (v, j, reach, s)
+    if best is None:
+        return None
+    v, j, reach_j, s_j = best
+    note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {s_j:.1f} m ahead"
+    return CautionDecision(v, j, reach_j, note)
