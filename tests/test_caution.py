@@ -149,3 +149,15 @@ def test_a_texting_pedestrian_who_steps_out_is_met_at_r_only_with_caution():
     assert on["pedestrians"][0]["min_distance"] >= 2.5 and on["margin_violations"] == 0
     assert on["reached_goal"] and on["road_departure_max"] == 0.0
     assert off["pedestrians"][0]["min_distance"] < 2.5  # the hazard the caution exists for
+
+
+@pytest.mark.slow
+def test_an_attentive_pedestrian_at_the_kerb_costs_little_time_a_texting_one_slows_the_car():
+    sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml")
+    free = dataclasses.replace(sc, pedestrians=(dataclasses.replace(sc.pedestrians[0], position=(70.0, 100.0)),))
+    t_free = drive_metrics(run_drive(free, "keypoints", seed=1, attentive=True))["time_to_goal"]
+    att = drive_metrics(run_drive(sc, "keypoints", seed=1, attentive=True))
+    tex = drive_metrics(run_drive(sc, "keypoints", seed=1, attentive=False))
+    assert att["reached_goal"] and att["time_to_goal"] <= 1.15 * t_free
+    assert tex["reached_goal"] and t_free * 1.1 < tex["time_to_goal"] <= 1.6 * t_free
+    assert att["margin_violations"] == 0 and tex["margin_violations"] == 0
