@@ -141,6 +141,23 @@ def figure(path: Path, seed: int = 0) -> None:
     print(f"wrote {path}")
 
 
+def solve_time(repeats: int = 5) -> None:
+    """The controller's median step time with and without caution, drives interleaved (on, off,
+    on, ...) so that the machine's load falls on both alike; seed 0 of each kind."""
+    base = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
+    for kind, kw in (("step-out", {}), ("texting stays", dict(stays=True)),
+                     ("attentive stays", dict(pose="attentive", stays=True))):  # fmt: skip
+        sc, _ = step_out(base, 0, **kw)
+        ms: dict[bool, list[float]] = {True: [], False: []}
+        for _ in range(repeats):
+            for caution in (True, False):
+                s = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
+                ms[caution].append(drive_metrics(run_drive(s, "keypoints", seed=0))["solve_ms_median"])
+        on, off = float(np.median(ms[True])), float(np.median(ms[False]))
+        print(f"{kind:16s} median step {on:.3f} ms with caution, {off:.3f} ms without: x{on / off:.2f}"
+              f"  (load {os.getloadavg()[0]:.1f})", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -151,7 +168,11 @@ def main() -> None:
     ap.add_argument("--set", nargs="*", default=[], help="[control] options, e.g. caution_pass_speed=4")
     ap.add_argument("--json", type=Path, default=None, help="write every run's numbers here")
     ap.add_argument("--figure", type=Path, default=None, help="only draw speed over time (seed 0) to this PNG")
+    ap.add_argument("--solve-time", action="store_true", help="only the median step time, caution on and off")
     args = ap.parse_args()
+    if args.solve_time:
+        solve_time()
+        return
     if args.figure:
         figure(args.figure)
         return

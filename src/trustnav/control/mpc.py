@@ -254,6 +254,8 @@ class MpcController:
             shifted = np.empty(self._plan.shape)
             shift_plan(self._plan, shifted)
         u0 = p.initial_guess() if shifted is None else shifted
+        if p.speed_cap < math.inf:  # caution: start the SQP inside its speed rows (its merit counts CBF rows only)
+            u0 = self._under_speed_cap(u0, float(x[3]))
         # deterministic: the solver's iteration budget alone bounds the step (no wall clock)
         deadline = None if self.config.deterministic else max(self.config.step_deadline - (_wall() - t0), 0.0)
         res: SolveResult = self.solver.solve(p, u0, deadline=deadline)
@@ -400,13 +402,31 @@ class MpcController:
         found = caution_bound(cfg, x[:2], heading, peds, tr, self._radii(len(peds), margins))
         if found is None:
             return detour
+        # the speed rows and the reference the cost tracks get the same bound (a reference above
+        # the rows would pull the SQP's merit against them), lowered by at most ``ease`` per step
+        bound = max(found.speed, speed - cfg.ease * self.config.dt) if bicycle else found.speed
         cost = p.cost
         ref = getattr(cost, "reference", None)
         if ref is not None and hasattr(ref, "v_max"):
-            p.cost = replace(cost, reference=replace(ref, v_max=max(min(ref.v_max, found.speed), 1e-3)))
+            p.cost = replace(cost, reference=replace(ref, v_max=max(min(ref.v_max, bound), 1e-3)))
         if bicycle:
-            p.speed_cap = max(found.speed, speed - cfg.ease * self.config.dt)
+            p.speed_cap = bound
         return detour or found.note
+
+    def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
+        """``u`` with its accelerations lowered where needed so that the bicycle's speed stays
+        within the step's speed rows (``problem.speed_cap``, widened as the model widens them)."""
+        p, m, dt = self.problem, self.model, self.config.dt
+        u = u.copy()
+        top = min(m.speed_max, p.speed_cap)
+        lo = m.accel_min
+        v = v0
+        for k in range(u.shape[0]):
+            hi = max(top, v0 + (k + 1) * dt * lo)
+            if v + u[k, 1] * dt > hi:
+                u[k, 1] = max((hi - v) / dt, lo)
+            v += u[k, 1] * dt
+        return u
 
     def _radii(self, n: int, margins: NDArray[np.float64] | None) -> NDArray[np.float64]:
         """Each pedestrian's R plus its uncertainty margin, as the route layers see them."""
