@@ -161,3 +161,14 @@ def test_an_attentive_pedestrian_at_the_kerb_costs_little_time_a_texting_one_slo
     assert att["reached_goal"] and att["time_to_goal"] <= 1.15 * t_free
     assert tex["reached_goal"] and t_free * 1.1 < tex["time_to_goal"] <= 1.6 * t_free
     assert att["margin_violations"] == 0 and tex["margin_violations"] == 0
+
+
+def test_a_bound_that_falls_below_the_speed_does_not_strain_the_solver():
+    """A warm start above a new, lower bound cost the SQP its iteration budget on 25-40 steps of
+    this drive (its merit counts CBF rows only); the controller now starts it inside the speed
+    rows, and every step converges."""
+    from trustnav.control import SolveStatus
+
+    sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml")
+    r = run_drive(sc, "keypoints", seed=2, attentive=True)
+    assert r.reached_goal and all(s is SolveStatus.OPTIMAL for s in r.statuses)
