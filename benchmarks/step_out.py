@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> dict:
     if args.sensing == "render":
         from trustnav.sim.driving import make_render_sensing
 
-        renderer, pipeline = make_render_sensing()
+        renderer, pipeline = make_render_sensing(base, args.rate)
     kinds = {
         "step-out": dict(),
         "attentive stays": dict(pose="attentive", stays=True),
