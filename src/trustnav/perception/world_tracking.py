@@ -24,8 +24,10 @@ identity survives frames that are a second apart and people who leave the view f
   person at its predicted position inside the camera's view), when it is out of view and unseen
   for ``out_of_view_seconds`` (people who left the view beside the car, or who stand so close in
   front that they are cut off, stay that long, predicted with growing uncertainty),
-  when it is more than ``behind`` metres behind the camera (passed), or when its position
-  uncertainty exceeds ``max_sigma``.
+  when it is more than ``behind`` metres behind the camera (passed), when its position
+  uncertainty exceeds ``max_sigma``, or, out of view, ``out_of_view_max_sigma`` (1.5 m: by then the
+  track no longer says where the person is, and a car that kept it waited for someone it could not
+  see).
 
 :meth:`WorldTracker.predict` gives every live track's mean and covariance at any time (the
 controller's rate is not the camera's).
@@ -62,7 +64,10 @@ class WorldTrackerConfig:
     placement errors stay alike (s): the same pose seen from nearly the same place gives the same
     detector bias frame after frame, so a frame that follows the track's previous one by dt < this
     is folded in with its covariance times error_correlation_s / dt (the frames of one such span
-    count as one independent placement); 0: every frame independent."""
+    count as one independent placement); 0: every frame independent. out_of_view_max_sigma: the
+    position sigma (m) beyond which a track out of the camera's view is dropped: where the camera
+    cannot look, a track that has grown this uncertain no longer says where the person is, only
+    that they were there (issue 34: a car waited for a crosser it could no longer see)."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
@@ -78,6 +83,7 @@ class WorldTrackerConfig:
     behind: float = 6.0
     max_sigma: float = 4.0
     error_correlation_s: float = 1.0
+    out_of_view_max_sigma: float = 1.5
 
     def __post_init__(self) -> None:
         for name, lo, hi in (
@@ -93,6 +99,7 @@ class WorldTrackerConfig:
             ("out_of_view_seconds", 0.0, 3600.0),
             ("behind", 0.0, 1e4),
             ("max_sigma", 0.01, 1e3),
+            ("out_of_view_max_sigma", 0.01, 1e3),
             ("error_correlation_s", 0.0, 60.0),
         ):
             v = getattr(self, name)
@@ -321,6 +328,8 @@ class WorldTracker:
                 # edge, a person is cut off and often missed: they are kept as out of view)
                 visible = bool(camera.in_view(body).all()) and depth > 1.0
                 if unseen > (cfg.keep_seconds if visible else cfg.out_of_view_seconds):
+                    continue
+                if not visible and sigma > cfg.out_of_view_max_sigma:
                     continue
             elif unseen > cfg.keep_seconds:
                 continue
