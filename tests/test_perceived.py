@@ -179,7 +179,7 @@ def test_tracker_keeps_identity_through_one_second_gaps_and_a_crossing():
 
 def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropped():
     sc = load_drive_scenario("case-1")
-    tr = WorldTracker(WorldTrackerConfig(out_of_view_seconds=6.0, out_of_view_max_sigma=100.0))  # the time rule
+    tr = WorldTracker(WorldTrackerConfig(out_of_view_seconds=6.0))  # standing: kept by the time rule
     cam0 = sc.camera.pose([33.5, 129.0], -math.pi / 2)
     for k in range(4):
         (tid,) = tr.update(float(k), [_estimate([37.5, 101.0], 0.3)], camera=cam0)
@@ -204,8 +204,9 @@ def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropp
 
 
 def test_a_track_out_of_view_is_dropped_once_it_no_longer_says_where_the_person_is():
-    """Out of the camera's view, a track whose position sigma passes out_of_view_max_sigma is
-    dropped (a car waited for a crosser it could no longer see, issue 34); in view, max_sigma."""
+    """Beside the camera's view and walking away from its axis, a track whose position sigma passes
+    out_of_view_max_sigma is dropped (a car waited for a crosser it could no longer see, issue 34);
+    one walking toward the car's path, or standing, is kept."""
     sc = load_drive_scenario("case-1")
     cam0 = sc.camera.pose([33.5, 129.0], -math.pi / 2)
     beside = sc.camera.pose([33.5, 103.0], -math.pi / 2)
@@ -218,6 +219,13 @@ def test_a_track_out_of_view_is_dropped_once_it_no_longer_says_where_the_person_
             tr.update(t, [], camera=beside)
         kept[limit] = tr.predict(8.0)
     assert kept[1.5] == [] and len(kept[100.0]) == 1
+    tr = WorldTracker()  # walking toward the axis from beside the view: kept, however uncertain
+    for k in range(4):
+        tr.update(float(k), [_estimate([45.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
+    for t in (4.0, 5.0, 6.0):
+        tr.update(t, [], camera=beside)
+    (s,) = tr.predict(6.0)
+    assert s.position[0] > 33.5 and math.sqrt(np.linalg.eigvalsh(s.position_covariance)[-1]) > 1.5
     assert math.sqrt(np.linalg.eigvalsh(kept[100.0][0].position_covariance)[-1]) > 1.5
     with pytest.raises(ValueError, match="out_of_view_max_sigma"):
         WorldTrackerConfig(out_of_view_max_sigma=0.0)
