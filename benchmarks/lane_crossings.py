@@ -11,6 +11,7 @@ they stepped out) or did not reach the goal, and the medians of time to goal and
     python benchmarks/lane_crossings.py               # 100 runs, ~2 min on 2 cores
     python benchmarks/lane_crossings.py --runs 20 --state true
     python benchmarks/lane_crossings.py --rate 10      # the camera at 10 frames/s
+    python benchmarks/lane_crossings.py --caution off  # without the trust-aware speed bound
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--state", choices=["perceived", "true"], default="perceived")
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
+    ap.add_argument("--caution", choices=["on", "off"], help="the trust-aware speed bound (default: on)")
     ap.add_argument("--json", help="write every run's summary to this file")
     args = ap.parse_args()
     base = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
@@ -84,6 +86,8 @@ def main() -> None:
     rows = []
     for k in range(args.runs):
         sc = variant(base, rng)
+        if args.caution is not None:
+            sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=args.caution == "on"))
         r = run_drive(sc, sensing="keypoints", seed=k, state=args.state, capture_rate=args.rate)
         m = r.metrics()
         rows.append({

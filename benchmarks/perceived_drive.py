@@ -11,11 +11,13 @@ identity switches.
     python benchmarks/perceived_drive.py                 # 20 seeds, keypoints, perceived (~1 min)
     python benchmarks/perceived_drive.py --seeds 5 --state true
     python benchmarks/perceived_drive.py --render        # adds Case I in render mode (~1 min more)
+    python benchmarks/perceived_drive.py --caution on    # with the trust-aware speed bound (issue 34)
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -41,8 +43,12 @@ def _frame_errors(r) -> list[tuple[float, float, bool]]:
     return out
 
 
-def _case_runs(name: str, seeds: range, state: str, sensing: str = "keypoints", **kw) -> list[dict]:
+def _case_runs(
+    name: str, seeds: range, state: str, sensing: str = "keypoints", caution: bool | None = None, **kw
+) -> list[dict]:
     sc = load_drive_scenario(name)
+    if caution is not None:  # the trust-aware speed bound on or off (the presets: off, the paper's)
+        sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
     variants = [True, False] if sc.variants else [None]
     out = []
     for seed in seeds:
@@ -115,8 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--state", choices=STATES, default="perceived", help="controller's pedestrian states")
     ap.add_argument("--render", action="store_true", help="also Case I in render mode (seed 0)")
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
+    ap.add_argument("--caution", choices=("on", "off"), help="the trust-aware speed bound (default: the presets', off)")
     ap.add_argument("--json", help="write the summary rows to this file")
     args = ap.parse_args(argv)
+    caution = None if args.caution is None else args.caution == "on"
     if not 1 <= args.seeds <= 1000:
         ap.error(f"--seeds must be in [1, 1000], got {args.seeds}")
     if args.rate is not None and not 0 < args.rate <= 60:
@@ -124,15 +132,16 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     t0 = time.perf_counter()
     for name, gap in (("case-1", 1.0), ("case-2", 0.5)):
-        rows.append(summarise(name, _case_runs(name, range(args.seeds), args.state, capture_rate=args.rate), gap))
+        runs = _case_runs(name, range(args.seeds), args.state, caution=caution, capture_rate=args.rate)
+        rows.append(summarise(name, runs, gap))
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
 
         sc = load_drive_scenario("case-1")
         renderer, pipeline = make_render_sensing(sc)
         try:
-            entries = _case_runs("case-1", range(1), args.state, "render", renderer=renderer, pipeline=pipeline,
-                                 capture_rate=args.rate)  # fmt: skip
+            entries = _case_runs("case-1", range(1), args.state, "render", caution=caution, renderer=renderer,
+                                 pipeline=pipeline, capture_rate=args.rate)  # fmt: skip
         finally:
             renderer.close()
             pipeline.backend.close()

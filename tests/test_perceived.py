@@ -179,7 +179,7 @@ def test_tracker_keeps_identity_through_one_second_gaps_and_a_crossing():
 
 def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropped():
     sc = load_drive_scenario("case-1")
-    tr = WorldTracker(WorldTrackerConfig(out_of_view_seconds=6.0))
+    tr = WorldTracker(WorldTrackerConfig(out_of_view_seconds=6.0))  # standing: kept by the time rule
     cam0 = sc.camera.pose([33.5, 129.0], -math.pi / 2)
     for k in range(4):
         (tid,) = tr.update(float(k), [_estimate([37.5, 101.0], 0.3)], camera=cam0)
@@ -201,6 +201,34 @@ def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropp
     assert tr2.predict(1.0) == []
     with pytest.raises(ValueError, match="time"):
         tr2.update(0.5, [])
+
+
+def test_a_track_out_of_view_is_dropped_once_it_no_longer_says_where_the_person_is():
+    """Beside the camera's view and walking away from its axis, a track whose position sigma passes
+    out_of_view_max_sigma is dropped (a car waited for a crosser it could no longer see, issue 34);
+    one walking toward the car's path, or standing, is kept."""
+    sc = load_drive_scenario("case-1")
+    cam0 = sc.camera.pose([33.5, 129.0], -math.pi / 2)
+    beside = sc.camera.pose([33.5, 103.0], -math.pi / 2)
+    kept = {}
+    for limit in (1.5, 100.0):
+        tr = WorldTracker(WorldTrackerConfig(out_of_view_max_sigma=limit))
+        for k in range(4):  # a walker crossing toward the car's side, seen from afar
+            tr.update(float(k), [_estimate([40.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
+        for t in (4.0, 5.0, 6.0, 7.0, 8.0):
+            tr.update(t, [], camera=beside)
+        kept[limit] = tr.predict(8.0)
+    assert kept[1.5] == [] and len(kept[100.0]) == 1
+    tr = WorldTracker()  # walking toward the axis from beside the view: kept, however uncertain
+    for k in range(4):
+        tr.update(float(k), [_estimate([45.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
+    for t in (4.0, 5.0, 6.0):
+        tr.update(t, [], camera=beside)
+    (s,) = tr.predict(6.0)
+    assert s.position[0] > 33.5 and math.sqrt(np.linalg.eigvalsh(s.position_covariance)[-1]) > 1.5
+    assert math.sqrt(np.linalg.eigvalsh(kept[100.0][0].position_covariance)[-1]) > 1.5
+    with pytest.raises(ValueError, match="out_of_view_max_sigma"):
+        WorldTrackerConfig(out_of_view_max_sigma=0.0)
 
 
 def test_a_person_too_close_in_front_to_be_seen_whole_is_not_dropped_as_missed():

@@ -710,7 +710,8 @@ def _drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     camera = {k: v for k, v in (("fov_deg", opt("fov")), ("up", opt("camera_height")), ("pitch_deg", opt("pitch")))
               if v is not None}  # fmt: skip
     control = {k: v for k, v in (("safety_radius", opt("safety_radius")), ("horizon", opt("horizon")),
-               ("reference_v_max", opt("v_max"))) if v is not None}  # fmt: skip
+               ("reference_v_max", opt("v_max")),
+               ("caution", None if opt("caution") is None else opt("caution") == "on")) if v is not None}  # fmt: skip
     route = {k: v for k, v in (("town", opt("town")), ("fov_deg", opt("carla_fov")),
              ("attentive_walker", _walker_arg(opt("attentive_walker"))),
              ("distracted_walker", _walker_arg(opt("distracted_walker")))) if v is not None}  # fmt: skip
@@ -994,6 +995,9 @@ def _scenario_options(d: argparse.ArgumentParser) -> None:
     k.add_argument("--horizon", type=int, help=f"MPC horizon N_h, {_range('horizon')}")
     k.add_argument("--v-max", type=float, help=f"speed bound of the reference, {_range('v_max')}")
     k.add_argument("--duration", type=float, help=f"time limit of an episode, {_range('duration')}")
+    k.add_argument("--caution", choices=("on", "off"),
+                   help="trust-aware speed bound near pedestrians who might step out (default: the scenario's "
+                   "[control] caution; off: the paper's controller; docs/controller.md)")  # fmt: skip
     p = d.add_argument_group("perception (default: the scenario's)")
     p.add_argument("--perception-latency", type=float, metavar="S",
                    help=f"seconds from a frame's capture to its people reaching the controller's estimates, "

@@ -14,6 +14,7 @@ from trustnav.control.barrier import (
     h_quad,
     predict_pedestrians,
 )
+from trustnav.control.caution import CautionConfig, CautionDecision, caution_bound, reaction_time
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, TrackingWeights, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockConfig
 from trustnav.control.models import CompiledDynamics, Dynamics, DynamicsModel, KinematicBicycle, SingleIntegrator
@@ -45,6 +46,8 @@ __all__ = [
     "Barrier",
     "BicycleProblem",
     "BoundedProportionalReference",
+    "CautionConfig",
+    "CautionDecision",
     "CompiledDynamics",
     "Cost",
     "DeadlockConfig",
@@ -69,6 +72,7 @@ __all__ = [
     "VelocityTrackingCost",
     "YieldConfig",
     "barrier",
+    "caution_bound",
     "cbf_rows",
     "continuous_time_radius",
     "h_quad",
@@ -76,4 +80,5 @@ __all__ = [
     "make_solver",
     "predict_pedestrians",
     "rank_key",
+    "reaction_time",
 ]

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
+from trustnav.control.caution import caution_bound
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -101,7 +102,7 @@ class MpcController:
         # the whole step in one compiled call where it applies (see _whole_step)
         self._whole = (
             type(self.model) in (SingleIntegrator, KinematicBicycle) and self.config.latency <= 0
-            and self._yielder is None and not self.problem.n_user
+            and self._yielder is None and not self.problem.n_user and self.config.caution is None
         )  # fmt: skip
         self._state_shape = (self.model.nx,)
         self._warm_up()
@@ -242,6 +243,8 @@ class MpcController:
                 capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
                 p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
+        if self.config.caution is not None:  # caution: the speed bound of who might step out
+            detour = self._caution(x, peds, tr, margins, detour)
         try:
             p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
         finally:
@@ -251,6 +254,8 @@ class MpcController:
             shifted = np.empty(self._plan.shape)
             shift_plan(self._plan, shifted)
         u0 = p.initial_guess() if shifted is None else shifted
+        if p.speed_cap < math.inf:  # caution: start the SQP inside its speed rows (its merit counts CBF rows only)
+            u0 = self._under_speed_cap(u0, float(x[3]))
         # deterministic: the solver's iteration budget alone bounds the step (no wall clock)
         deadline = None if self.config.deterministic else max(self.config.step_deadline - (_wall() - t0), 0.0)
         res: SolveResult = self.solver.solve(p, u0, deadline=deadline)
@@ -371,6 +376,57 @@ class MpcController:
             state_violation=limit,
             detour=None if dl is None else dl.note,
         )
+
+    def _caution(self, x, peds, tr, margins, detour: str | None) -> str | None:
+        """Set this step's caution (:mod:`~trustnav.control.caution`): the reference speed the cost
+        tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
+        present speed by at most ``ease`` per step). Returns the step's note."""
+        p, cfg = self.problem, self.config.caution
+        p.speed_cap = math.inf
+        if not len(peds):
+            return detour
+        bicycle = type(self.model) is KinematicBicycle
+        if bicycle:
+            heading = np.array([math.cos(x[2]), math.sin(x[2])])
+            speed = float(x[3])
+        else:  # a planar point: toward the goal its cost tracks
+            goal = getattr(p.cost, "goal", None)
+            if goal is None:
+                return detour
+            heading = np.asarray(goal, dtype=float) - x[:2]
+            n = float(np.hypot(*heading))
+            if n < 1e-9:
+                return detour
+            heading = heading / n
+            speed = float(np.hypot(*self._last_control[:2]))
+        found = caution_bound(cfg, x[:2], heading, peds, tr, self._radii(len(peds), margins))
+        if found is None:
+            return detour
+        # the speed rows and the reference the cost tracks get the same bound (a reference above
+        # the rows would pull the SQP's merit against them), lowered by at most ``ease`` per step
+        bound = max(found.speed, speed - cfg.ease * self.config.dt) if bicycle else found.speed
+        cost = p.cost
+        ref = getattr(cost, "reference", None)
+        if ref is not None and hasattr(ref, "v_max"):
+            p.cost = replace(cost, reference=replace(ref, v_max=max(min(ref.v_max, bound), 1e-3)))
+        if bicycle:
+            p.speed_cap = bound
+        return detour or found.note
+
+    def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
+        """``u`` with its accelerations lowered where needed so that the bicycle's speed stays
+        within the step's speed rows (``problem.speed_cap``, widened as the model widens them)."""
+        p, m, dt = self.problem, self.model, self.config.dt
+        u = u.copy()
+        top = min(m.speed_max, p.speed_cap)
+        lo = m.accel_min
+        v = v0
+        for k in range(u.shape[0]):
+            hi = max(top, v0 + (k + 1) * dt * lo)
+            if v + u[k, 1] * dt > hi:
+                u[k, 1] = max((hi - v) / dt, lo)
+            v += u[k, 1] * dt
+        return u
 
     def _radii(self, n: int, margins: NDArray[np.float64] | None) -> NDArray[np.float64]:
         """Each pedestrian's R plus its uncertainty margin, as the route layers see them."""

@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from trustnav.control import _kernels as kern
 from trustnav.control import _qp, starts
 from trustnav.control.barrier import TIMINGS, Barrier, RoadEdgeBarrier, Timing, cbf_rows
+from trustnav.control.caution import CautionConfig
 from trustnav.control.costs import (
     Cost,
     LaneStage,
@@ -80,7 +81,11 @@ class MpcConfig:
 
     ``yielding``: the layer that makes a car on a lane brake and wait for a pedestrian it cannot
     pass without leaving the road (:mod:`~trustnav.control.yielding`; a ``LaneTrackingCost`` with a
-    ``RoadEdgeBarrier``); None: the MPC alone."""
+    ``RoadEdgeBarrier``); None: the MPC alone.
+
+    ``caution``: the trust-aware speed bound (:mod:`~trustnav.control.caution`: the car can stop
+    short of the region a pedestrian could reach before the camera would show a step-out, larger
+    as trust falls); None (default): the paper's controller, unchanged."""
 
     horizon: int = 7
     dt: float = 0.05
@@ -93,6 +98,7 @@ class MpcConfig:
     deterministic: bool = False
     deadlock: DeadlockConfig | None = field(default_factory=DeadlockConfig)
     yielding: YieldConfig | None = field(default_factory=YieldConfig)
+    caution: CautionConfig | None = None
 
     @property
     def step_deadline(self) -> float:
@@ -119,6 +125,8 @@ class MpcConfig:
             raise ValueError(f"deadlock must be a DeadlockConfig or None, got {self.deadlock!r}")
         if self.yielding is not None and not isinstance(self.yielding, YieldConfig):
             raise ValueError(f"yielding must be a YieldConfig or None, got {self.yielding!r}")
+        if self.caution is not None and not isinstance(self.caution, CautionConfig):
+            raise ValueError(f"caution must be a CautionConfig or None, got {self.caution!r}")
 
 
 MAX_COORDINATE = 1e12  # m; beyond it float64 spacing exceeds 0.1 mm
@@ -306,6 +314,7 @@ class MpcProblem:
         self.exact_capable = self._fused is _fused_single_integrator
         self.exact_hessian = self.exact_capable  # the solver may turn it off (SqpSolver(hessian=...))
         self._curved = False
+        self.speed_cap = math.inf  # the step's bound on the speed rows (caution; inf: the model's)
         self._resize(0)
 
     def _resize(self, n_p: int) -> None:
@@ -483,6 +492,7 @@ class MpcProblem:
             self._curved = True
         else:
             w, wheelbase, vmin, vmax, dt, n_sub = self._bicycle_constants()
+            vmax = min(vmax, self.speed_cap)
             st = self.stage
             it, state, cost, flag = _qp.bicycle_steps(
                 max_it, tol, merit_weight, u, seen, np.empty_like(u), self.x0, self.u_prev, st.points, st.yaw,
@@ -636,13 +646,25 @@ class MpcProblem:
                 self.bu, self.g, self.n,
             )  # fmt: skip
         row = self.m_cbf
-        for idx, lo, hi in self.model.state_rows(self.x0, self.n_h, c.dt):
+        for idx, lo, hi in self._state_rows():
             rows = slice(row, row + self.n_h)
             self.A[rows] = sens[1:, idx, :]
             self.bl[self.n + row : self.n + row + self.n_h] = lo - xs[1:, idx]
             self.bu[self.n + row : self.n + row + self.n_h] = hi - xs[1:, idx]
             row += self.n_h
         return cost
+
+    def _state_rows(self) -> list:
+        """The model's state rows at x0, the bicycle's speed bound lowered to ``speed_cap``
+        (caution; widened, as the model's, to the speeds reachable from v(0))."""
+        rows = self.model.state_rows(self.x0, self.n_h, self.config.dt)
+        m = self.model
+        if self.speed_cap < math.inf and type(m) is KinematicBicycle:
+            k = np.arange(1, self.n_h + 1) * self.config.dt
+            top = min(m.speed_max, self.speed_cap)
+            rows = [(i, lo, np.maximum(top, float(self.x0[3]) + k * m.accel_min)) if i == 3 else (i, lo, hi)
+                    for i, lo, hi in rows]  # fmt: skip
+        return rows
 
     def _user_rows(
         self, xs: NDArray[np.float64], sens: NDArray[np.float64] | None
@@ -758,10 +780,7 @@ class MpcProblem:
         rows = cbf_rows(xs[:, :2], self.peds, self.vels, self.one_minus_gamma, self.radii, c.dt, c.timing)
         if self.n_user:
             rows = np.concatenate([rows, self._user_rows(xs, None)[0]], axis=1)
-        extra = [
-            np.concatenate([xs[1:, idx] - lo, hi - xs[1:, idx]])
-            for idx, lo, hi in self.model.state_rows(self.x0, self.n_h, c.dt)
-        ]
+        extra = [np.concatenate([xs[1:, idx] - lo, hi - xs[1:, idx]]) for idx, lo, hi in self._state_rows()]
         return np.concatenate([rows.ravel(), *extra])
 
     def decision_rows_np(self, u_flat: ArrayLike) -> NDArray[np.float64]:
@@ -792,6 +811,7 @@ def _fused_single_integrator(p: MpcProblem, u: NDArray[np.float64]) -> float:
 
 def _fused_bicycle(p: MpcProblem, u: NDArray[np.float64]) -> float:
     w, wheelbase, vmin, vmax, dt, n_sub = p._bicycle_constants()  # frozen: gathered once per problem
+    vmax = min(vmax, p.speed_cap)  # caution's bound of this step (inf without)
     st = p.stage
     return kern.bicycle_qp(
         p.x0, u, p.u_prev, st.points, st.yaw, st.speed, w, wheelbase, vmin, vmax, p.peds, p.vels,

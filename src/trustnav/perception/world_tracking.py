@@ -24,8 +24,11 @@ identity survives frames that are a second apart and people who leave the view f
   person at its predicted position inside the camera's view), when it is out of view and unseen
   for ``out_of_view_seconds`` (people who left the view beside the car, or who stand so close in
   front that they are cut off, stay that long, predicted with growing uncertainty),
-  when it is more than ``behind`` metres behind the camera (passed), or when its position
-  uncertainty exceeds ``max_sigma``.
+  when it is more than ``behind`` metres behind the camera (passed), when its position
+  uncertainty exceeds ``max_sigma``, or, beside or behind the camera's horizontal view and walking
+  away from its axis, ``out_of_view_max_sigma`` (1.5 m: by then the track no longer says where the person is, and a car
+  that kept it waited for someone it could not see; a person cut off in front of the camera, where
+  the car may drive into them, is kept).
 
 :meth:`WorldTracker.predict` gives every live track's mean and covariance at any time (the
 controller's rate is not the camera's).
@@ -62,7 +65,12 @@ class WorldTrackerConfig:
     placement errors stay alike (s): the same pose seen from nearly the same place gives the same
     detector bias frame after frame, so a frame that follows the track's previous one by dt < this
     is folded in with its covariance times error_correlation_s / dt (the frames of one such span
-    count as one independent placement); 0: every frame independent."""
+    count as one independent placement); 0: every frame independent. out_of_view_max_sigma: the
+    position sigma (m) beyond which a track beside or behind the camera's horizontal view, walking
+    away from its axis, is dropped (one cut off in front of the camera, or walking toward the car's
+    path, is kept: the car may drive into them): where the camera
+    cannot look, a track that has grown this uncertain no longer says where the person is, only
+    that they were there (issue 34: a car waited for a crosser it could no longer see)."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
@@ -78,6 +86,7 @@ class WorldTrackerConfig:
     behind: float = 6.0
     max_sigma: float = 4.0
     error_correlation_s: float = 1.0
+    out_of_view_max_sigma: float = 1.5
 
     def __post_init__(self) -> None:
         for name, lo, hi in (
@@ -93,6 +102,7 @@ class WorldTrackerConfig:
             ("out_of_view_seconds", 0.0, 3600.0),
             ("behind", 0.0, 1e4),
             ("max_sigma", 0.01, 1e3),
+            ("out_of_view_max_sigma", 0.01, 1e3),
             ("error_correlation_s", 0.0, 60.0),
         ):
             v = getattr(self, name)
@@ -309,13 +319,23 @@ class WorldTracker:
                 # head, middle and feet of a person standing there (camera at about head height)
                 z = camera.position[2]
                 body = np.array([[xy[0], xy[1], z], [xy[0], xy[1], z - 0.8], [xy[0], xy[1], z - 1.6]])
-                depth = float(camera.to_camera(body[1:2])[0, 2])
+                mid = camera.to_camera(body[1:2])[0]
+                depth = float(mid[2])
                 if depth < -cfg.behind:
                     continue
                 # should have been seen: the whole body in the image (near the car, or at the image's
                 # edge, a person is cut off and often missed: they are kept as out of view)
                 visible = bool(camera.in_view(body).all()) and depth > 1.0
                 if unseen > (cfg.keep_seconds if visible else cfg.out_of_view_seconds):
+                    continue
+                # beside or behind the camera's horizontal view (not merely cut off in front of
+                # it, where the car may drive into them) a track this uncertain says nothing useful,
+                # and walking away from the camera's axis (not toward the car's path)
+                u = camera.spec.principal[0] + camera.focal_px * float(mid[0]) / depth if depth > 1e-9 else math.nan
+                vel = t.mean[2:4] if to_world is None else np.asarray(to_world).T @ t.mean[2:4]
+                lateral = float(np.asarray(vel) @ np.asarray(camera.right)[:2])  # m/s to the image's right
+                away = abs(lateral) > 0.3 and lateral * float(mid[0]) > 0.0  # walking, not standing
+                if not 0.0 <= u < camera.spec.width and away and sigma > cfg.out_of_view_max_sigma:
                     continue
             elif unseen > cfg.keep_seconds:
                 continue

@@ -745,8 +745,9 @@ def drive(
     sc = sim.scenario
     if max_frames is not None:
         sim.max_frames = max_frames
-    policy = make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True,
-                      barriers=sc.control.barriers(sc.road))  # fmt: skip
+    config = sc.control.config(sim.capture_rate, sc.sensing.perception_latency)
+    model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
+    policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road))
 
     def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:

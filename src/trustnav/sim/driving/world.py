@@ -23,10 +23,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control import (
     BoundedProportionalReference,
+    CautionConfig,
     KinematicBicycle,
     LaneTrackingCost,
     MpcConfig,
     RoadEdgeBarrier,
+    reaction_time,
 )
 from trustnav.geometry.camera import CameraSpec
 from trustnav.perception.localisation import LocaliserConfig
@@ -141,7 +143,13 @@ class ControlSpec:
     ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``, with
     the controller's yielding layer (:mod:`~trustnav.control.yielding`: the car brakes and waits for a
     pedestrian it cannot pass on the road); on by default, ``road_edges = false`` is the paper's
-    controller, which knows no road (docs/drive.md, "Road edges in the controller")."""
+    controller, which knows no road (docs/drive.md, "Road edges in the controller").
+    ``caution`` (on by default; false: the paper's controller): the trust-aware speed bound
+    (:mod:`~trustnav.control.caution`): the car can stop short of the region a pedestrian could
+    reach, at ``caution_walking_speed`` times (1 - trust) ** ``caution_trust_exponent``, before
+    the camera would show a step-out (``caution_confirm_frames`` camera periods plus the
+    perception and command latencies and one control period), braking at
+    ``caution_deceleration``; never below ``caution_pass_speed`` (docs/controller.md)."""
 
     rate: Annotated[float, Number(0, 1000, lo_open=True, unit=" Hz")] = 20.0
     dt: Annotated[float, Number(lo=0, lo_open=True, unit=" s")] = 0.08
@@ -158,15 +166,39 @@ class ControlSpec:
     road_margin: Annotated[float, NON_NEGATIVE] = 0.9
     road_gamma: Annotated[float, Number(0.0, 1.0, lo_open=True)] = 0.5
     road_front: Annotated[float, NON_NEGATIVE] = 2.0
+    caution: bool = True
+    caution_walking_speed: Annotated[float, Number(lo=0, unit=" m/s")] = 1.4
+    caution_trust_exponent: Annotated[float, POSITIVE] = 2.0
+    caution_deceleration: Annotated[float, Number(lo=0, lo_open=True, unit=" m/s^2")] = 4.0
+    caution_pass_speed: Annotated[float, Number(lo=0, unit=" m/s")] = 4.0
+    caution_confirm_frames: Annotated[float, NON_NEGATIVE] = 2.0
 
     def __post_init__(self) -> None:
         check_fields(self)
         self.config()  # the controller's own checks (between fields)
         BoundedProportionalReference(self.reference_gain, self.reference_v_max)
 
-    def config(self) -> MpcConfig:
+    def caution_config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> CautionConfig | None:
+        """The caution of a drive whose camera runs at ``camera_rate`` frames/s with that
+        perception latency (None when ``caution`` is off)."""
+        if not self.caution:
+            return None
+        reaction = reaction_time(camera_rate, self.caution_confirm_frames, perception_latency, self.latency,
+                                 1.0 / self.rate)  # fmt: skip
+        return CautionConfig(
+            reaction=reaction,
+            walking_speed=self.caution_walking_speed,
+            trust_exponent=self.caution_trust_exponent,
+            deceleration=self.caution_deceleration,
+            pass_speed=self.caution_pass_speed,
+        )
+
+    def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> MpcConfig:
+        """The controller's configuration for a camera at ``camera_rate`` frames/s (it sets the
+        caution's reaction time)."""
         extra = {"deadline": self.deadline} if "deadline" in MpcConfig.__dataclass_fields__ else {}
         return MpcConfig(
+            caution=self.caution_config(camera_rate, perception_latency),
             confidence=self.confidence,
             horizon=self.horizon,
             dt=self.dt,

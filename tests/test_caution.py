@@ -1,0 +1,174 @@
+"""Trust sets speed (issue 34): the caution's speed bound from stopping distance, its options, the
+controller's speed rows under it, and the step-out it exists for."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trustnav.control import (
+    CautionConfig,
+    KinematicBicycle,
+    LaneTrackingCost,
+    MpcConfig,
+    MpcController,
+    RoadEdgeBarrier,
+    caution_bound,
+    reaction_time,
+)
+from trustnav.sim.driving import load_drive_scenario, run_drive
+from trustnav.sim.driving.episode import drive_metrics
+from trustnav.sim.driving.world import ControlSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+CAR, AHEAD = np.array([0.0, 0.0]), np.array([1.0, 0.0])
+
+
+DEFAULT = CautionConfig()
+
+
+def bound(ped, trust, cfg=DEFAULT, r=2.5):
+    return caution_bound(cfg, CAR, AHEAD, np.array([ped], dtype=float), np.array([trust]), np.array([r]))
+
+
+def test_trusted_pedestrians_and_those_behind_or_far_aside_get_no_bound():
+    assert bound((15.0, 3.3), 1.0) is None  # fully trusted: no reach, and 3.3 m > R from the line
+    assert bound((-1.0, 3.3), 0.0) is None  # beside/behind the car: the barrier's, not the caution's
+    assert bound((15.0, 9.0), 0.0) is None  # too far aside to reach the car's line in time
+    low = bound((15.0, 3.3), 0.1)
+    assert low is not None and low.pedestrian == 0 and "caution" in low.note
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    s=st.floats(0.5, 60.0),
+    d=st.floats(0.0, 6.0),
+    trust=st.floats(0.0, 1.0),
+    reaction=st.floats(0.1, 3.0),
+)
+def test_the_bound_lets_the_car_stop_short_of_the_reachable_region(s, d, trust, reaction):
+    """Driving on for the reaction time, then braking at the deceleration, the car stops before
+    its line comes within R of where the pedestrian could be (or it is at the floor speed)."""
+    cfg = CautionConfig(reaction=reaction)
+    b = bound((s, d), trust, cfg)
+    rho = cfg.walking_speed * (1 - trust) ** cfg.trust_exponent * reaction
+    if d >= 2.5 + rho:
+        assert b is None
+        return
+    assert b is not None
+    room = s - math.sqrt((2.5 + rho) ** 2 - d**2)
+    v = b.speed
+    assert v >= cfg.pass_speed - 1e-12
+    if v > cfg.pass_speed + 1e-9:
+        assert v * reaction + v * v / (2 * cfg.deceleration) <= room + 1e-6
+
+
+@settings(max_examples=40, deadline=None)
+@given(s=st.floats(3.0, 40.0), d=st.floats(2.6, 4.0), t1=st.floats(0.0, 1.0), t2=st.floats(0.0, 1.0))
+def test_less_trust_never_allows_more_speed(s, d, t1, t2):
+    lo, hi = sorted((t1, t2))
+    b_lo, b_hi = bound((s, d), lo), bound((s, d), hi)
+    v_lo = math.inf if b_lo is None else b_lo.speed
+    v_hi = math.inf if b_hi is None else b_hi.speed
+    assert v_lo <= v_hi + 1e-9
+
+
+def test_reaction_time_and_bad_options_are_named():
+    assert reaction_time(1.0, 2.0, 0.0, 0.1, 0.05) == pytest.approx(2.15)
+    assert reaction_time(10.0) == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="caution deceleration must be a positive"):
+        CautionConfig(deceleration=0.0)
+    with pytest.raises(ValueError, match="caution walking_speed"):
+        CautionConfig(walking_speed=-1.0)
+    with pytest.raises(ValueError, match="caution must be a CautionConfig"):
+        MpcConfig(caution=True)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"\[control\] caution_deceleration must be a positive"):
+        ControlSpec(caution_deceleration=0.0)
+    with pytest.raises(ValueError, match=r"\[control\] caution must be true or false"):
+        ControlSpec(caution="yes")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="camera_rate"):
+        reaction_time(0.0)
+    assert ControlSpec(caution=False).config().caution is None
+    on = ControlSpec().config(camera_rate=10.0, perception_latency=0.3).caution
+    assert on is not None and on.reaction == pytest.approx(0.2 + 0.3 + 0.1 + 0.05)
+
+
+def test_the_controller_bounds_the_planned_speed_only_near_an_untrusted_pedestrian():
+    cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0))
+    road = RoadEdgeBarrier((-50.0, 0.0), (250.0, 0.0), left=3.0, right=3.0, margin=0.9)
+    cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, caution=CautionConfig(), deterministic=True)
+    ctl = MpcController(KinematicBicycle(), cost, cfg, barriers=[road])
+    x = np.array([0.0, 0.0, 0.0, 8.0])
+    ped = np.array([[16.0, 3.4]])
+    expected = bound((16.0, 3.4), 0.0).speed
+    assert expected < 8.0
+    sol = ctl.step(x, ped, np.zeros((1, 2)), np.array([0.0]))
+    cap = max(expected, 8.0 - cfg.caution.ease * cfg.dt)
+    assert sol.predicted_states[1:, 3].max() <= cap + 1e-6
+    assert sol.detour is not None and sol.detour.startswith("caution")
+    ctl.reset()  # trusted: the same car keeps its speed
+    free = ctl.step(x, ped, np.zeros((1, 2)), np.array([1.0]))
+    assert free.predicted_states[1:, 3].max() > cap + 0.1 and free.detour is None
+
+
+def _kerb(caution: bool, x_ped: float):
+    sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml").with_attention(False)
+    ped = dataclasses.replace(sc.pedestrians[0], position=(x_ped, 100.0))
+    return dataclasses.replace(
+        sc, pedestrians=(ped,), control=dataclasses.replace(sc.control, caution=caution), duration=3.0
+    )
+
+
+def test_caution_off_is_the_papers_controller_and_an_idle_caution_changes_nothing():
+    """caution = false builds no caution; caution on with nobody near the path gives the same
+    drive, number for number (the hooks are inert when no bound binds)."""
+    assert _kerb(False, 37.6).control.config().caution is None
+    off = drive_metrics(run_drive(_kerb(False, 70.0), "keypoints", seed=3))
+    on = drive_metrics(run_drive(_kerb(True, 70.0), "keypoints", seed=3))
+    for m in (off, on):
+        m.pop("solve_ms_median"), m.pop("solve_ms_p95")
+    assert on == off
+    near = drive_metrics(run_drive(_kerb(True, 37.6), "keypoints", seed=3))
+    assert near["min_speed"] < off["min_speed"] - 1.0  # a texting pedestrian at the kerb: it slows
+
+
+@pytest.mark.slow
+def test_a_texting_pedestrian_who_steps_out_is_met_at_r_only_with_caution():
+    sc = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
+    res = {}
+    for caution in (True, False):
+        s = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
+        res[caution] = drive_metrics(run_drive(s, "keypoints", seed=2))
+    on, off = res[True], res[False]
+    assert on["pedestrians"][0]["min_distance"] >= 2.5 and on["margin_violations"] == 0
+    assert on["reached_goal"] and on["road_departure_max"] == 0.0
+    assert off["pedestrians"][0]["min_distance"] < 2.5  # the hazard the caution exists for
+
+
+@pytest.mark.slow
+def test_an_attentive_pedestrian_at_the_kerb_costs_little_time_a_texting_one_slows_the_car():
+    sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml")
+    free = dataclasses.replace(sc, pedestrians=(dataclasses.replace(sc.pedestrians[0], position=(70.0, 100.0)),))
+    t_free = drive_metrics(run_drive(free, "keypoints", seed=1, attentive=True))["time_to_goal"]
+    att = drive_metrics(run_drive(sc, "keypoints", seed=1, attentive=True))
+    tex = drive_metrics(run_drive(sc, "keypoints", seed=1, attentive=False))
+    assert att["reached_goal"] and att["time_to_goal"] <= 1.15 * t_free
+    assert tex["reached_goal"] and t_free * 1.1 < tex["time_to_goal"] <= 1.6 * t_free
+    assert att["margin_violations"] == 0 and tex["margin_violations"] == 0
+
+
+def test_a_bound_that_falls_below_the_speed_does_not_strain_the_solver():
+    """A warm start above a new, lower bound cost the SQP its iteration budget on 25-40 steps of
+    this drive (its merit counts CBF rows only); the controller now starts it inside the speed
+    rows, and every step converges."""
+    from trustnav.control import SolveStatus
+
+    sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml")
+    r = run_drive(sc, "keypoints", seed=2, attentive=True)
+    assert r.reached_goal and all(s is SolveStatus.OPTIMAL for s in r.statuses)
