@@ -88,9 +88,9 @@ def test_reaction_time_and_bad_options_are_named():
         CautionConfig(walking_speed=-1.0)
     with pytest.raises(ValueError, match="caution must be a CautionConfig"):
         MpcConfig(caution=True)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match=r"\[control\] caution_deceleration must be a positive"):
+    with pytest.raises(ValueError, match=r"caution_deceleration must be a number > 0 m/s\^2, got 0"):
         ControlSpec(caution_deceleration=0.0)
-    with pytest.raises(ValueError, match=r"\[control\] caution must be true or false"):
+    with pytest.raises(ValueError, match="caution must be true or false, got 'yes'"):
         ControlSpec(caution="yes")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="camera_rate"):
         reaction_time(0.0)
