@@ -13,7 +13,8 @@ feet lie below the horizon, and h / (v_f - v_0) is H / c for every person of one
   squares on h = k v_f - k v_0 over the people that agree with the line through two of them that
   most agree with; a box whose height is off the line by more than a factor ``tolerance`` x the
   spread of human heights, or whose feet lie above the fitted horizon, is rejected. With fewer than
-  :data:`MIN_PEOPLE` people in the window only the prior is used: the feet lie below
+  :data:`MIN_PEOPLE` people in the window, or their feet within :data:`MIN_SPREAD` of a height of
+  one another, only the prior is used: the feet lie below
   ``prior_horizon`` x the frame's height, and a box is at least ``prior_min_height`` of the distance
   from its feet to that row (a logo on a dashboard, at the bottom of the image, is far smaller than
   a person standing there would be).
@@ -38,6 +39,8 @@ __all__ = ["HEIGHT_RANGE_M", "MIN_PEOPLE", "GateConfig", "HorizonFit", "Rejectio
 HEIGHT_RANGE_M = (1.0, 2.1)
 #: People needed (in the fit's window) to fit a horizon from the frame itself.
 MIN_PEOPLE = 3
+#: The feet rows of the people fitted must span at least this share of their median height.
+MIN_SPREAD = 0.5
 #: A person lies on a fitted line when their height is within this log-ratio of it (~ +-25 %).
 INLIER = 0.22
 
@@ -106,8 +109,9 @@ class HorizonFit:
         if len(self._pairs) < MIN_PEOPLE:
             return None
         v, h = np.array(self._pairs).T
-        if np.ptp(v) < 0.05 * max(float(np.median(h)), 1.0):
-            # all feet on one row: the slope is not determined; the heights alone give the scale
+        if np.ptp(v) < MIN_SPREAD * max(float(np.median(h)), 1.0):
+            # feet on nearly one row: people's own heights (+-10 %) would set the slope, and the
+            # horizon extrapolated from it could lie anywhere
             return None
         # the line with the most people within INLIER of it, over lines through two people (all
         # pairs, or a fixed sample of them: deterministic), then least squares on those people
