@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-import trustnav.cli as cli
-from trustnav.cli import OutputFolder, main
+import trustnav.cli.drive as drive_command
+from trustnav.cli import main
+from trustnav.outputs import OutputFolder
 
 OUTPUTS = ("metrics.json", "frames", "top_view.png")
 
@@ -103,21 +104,24 @@ def test_refusals_come_before_anything_is_written(tmp_path):
 # -- the commands ---------------------------------------------------------------------------------
 
 
-def test_ctrl_c_during_demo_leaves_the_previous_demo_as_it_was(tmp_path, monkeypatch, capsys):
-    def first(case, sensing, attentive, seed, rate, out, **kw):
-        (out / "metrics.json").write_text('{"run": 1}')
-        return []
+def test_ctrl_c_during_demo_leaves_the_previous_demo_as_it_was(tmp_path, monkeypatch, capsys, quick_demo):
+    from trustnav.sim.driving import demo as story
+    from trustnav.viz import drive_plots
 
-    def interrupted(case, sensing, attentive, seed, rate, out, **kw):
+    def first(demo, out, video=True):
+        (out / "metrics.json").write_text('{"run": 1}')
+
+    def interrupted(demo, out, video=True):
         (out / "metrics.json").write_text('{"run": 2}')  # half written when Ctrl-C comes
         raise KeyboardInterrupt
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(cli, "_drive_runs", first)
+    monkeypatch.setattr(story, "run_demo", lambda seed, progress=None: quick_demo)
+    monkeypatch.setattr(drive_plots, "write_demo_outputs", first)
     assert main(["demo"]) == 0
     demo = tmp_path / "out" / "demo"
     before = _tree(demo)
-    monkeypatch.setattr(cli, "_drive_runs", interrupted)
+    monkeypatch.setattr(drive_plots, "write_demo_outputs", interrupted)
     assert main(["demo"]) == 130
     assert "interrupted" in _one_line(capsys.readouterr().err)
     assert _tree(demo) == before == {"metrics.json": b'{"run": 1}'}
@@ -130,7 +134,7 @@ def test_failed_drive_and_scenario_leave_nothing_behind(tmp_path, monkeypatch, c
     def failing(*args, **kwargs):
         raise ValueError("the world fell apart")
 
-    monkeypatch.setattr(cli, "_drive_runs", failing)
+    monkeypatch.setattr(drive_command, "run_variants", failing)
     assert main(["drive", "case-1", "--out", str(tmp_path / "d")]) == 2
     assert "the world fell apart" in _one_line(capsys.readouterr().err)
     monkeypatch.setattr(paper, "run_scenario", lambda name, solver="sqp": (_ for _ in ()).throw(KeyboardInterrupt))

@@ -12,6 +12,7 @@ share the look of :mod:`trustnav.viz.style` (pedestrian j in ``person_colour(j)`
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,7 @@ __all__ = [
     "trust_rgb",
     "trusts_in_force",
     "write_animation",
+    "write_demo_outputs",
     "write_drive_outputs",
 ]
 
@@ -568,17 +570,21 @@ def write_drive_outputs(
     out: str | Path,
     video: bool = True,
     comparisons: Sequence[tuple[str, DriveResult]] = (),
+    offset_only: Sequence[tuple[str, DriveResult]] = (),
 ) -> dict[str, Path]:
     """Write a drive's figures, annotated frames and animation into ``out``; returns their paths
     (metrics.json is the caller's). ``comparisons``: (label, result) runs of the same scenario
-    drawn beside it in the top view and the distance plot (e.g. the equal-trust run)."""
+    drawn beside it in the top view and the distance plot (e.g. the equal-trust run);
+    ``offset_only``: runs drawn in the top view's offset panel only (:func:`plot_top_view`)."""
     import cv2
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     frames = annotated_frames(result)
     paths = {
-        "top_view": plot_top_view(result, out / "top_view.png", comparisons=comparisons, camera_frames=frames),
+        "top_view": plot_top_view(
+            result, out / "top_view.png", comparisons=comparisons, camera_frames=frames, offset_only=offset_only
+        ),
         "trust": plot_trust(result, out / "trust.png"),
         "distance": plot_distance(result, out / "distance.png", comparisons=comparisons),
     }
@@ -591,6 +597,18 @@ def write_drive_outputs(
     paths["frames"] = fdir
     if video:
         paths["video"] = write_animation(result, out / "drive.mp4", frames, fps=result.scenario.control.rate)
+    return paths
+
+
+def write_demo_outputs(demo: Any, out: str | Path, video: bool = True) -> dict[str, Path]:
+    """Write the demo's outputs once (``demo``: a :class:`trustnav.sim.driving.demo.DemoRuns`): the
+    trust-aware drive's figures, frames and animation with the equal-trust run drawn beside it in
+    the top view and the distance plot, keypoint sensing in the offset panel, and metrics.json."""
+    equal = f"equal trust {demo.runs()['equal_trust']['trust_given_to_controller']:g}"
+    paths = write_drive_outputs(demo.trust_aware, out, video=video, comparisons=[(equal, demo.equal_trust)],
+                                offset_only=[("trust-aware, keypoint sensing", demo.keypoints)])  # fmt: skip
+    paths["metrics"] = Path(out) / "metrics.json"
+    paths["metrics"].write_text(json.dumps(demo.metrics(), indent=2))
     return paths
 
 

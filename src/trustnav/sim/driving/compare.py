@@ -11,7 +11,7 @@ A scenario with ``variants`` (Case II) is compared per variant. :func:`compariso
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -95,10 +95,15 @@ def compare_trust(
     control_rate: float | None = None,
     state: str = "perceived",
     progress: Callable[[str, float, float], None] | None = None,
+    modes: Sequence[str] = tuple(TRUST_MODES),
 ) -> TrustComparison:
     """Drive ``scenario`` trust-aware and at constant trust 0 and 1 (per variant: ``attentive``
     True/False one behaviour, None the scenario's variants or as given). Pure: no files written.
-    ``progress(label, t, duration)`` after each control step."""
+    ``progress(label, t, duration)`` after each control step. ``modes``: the keys of
+    :data:`TRUST_MODES` to drive (default all, in that order)."""
+    unknown = [m for m in modes if m not in TRUST_MODES]
+    if unknown or not modes:
+        raise ValueError(f"modes must be keys of TRUST_MODES {tuple(TRUST_MODES)}, got {tuple(modes)!r}")
     if attentive is not None:
         variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
     elif scenario.variants:
@@ -109,7 +114,8 @@ def compare_trust(
     runs = []
     for tag, att in variants:
         sc = prepare_scenario(scenario, att, control_rate)
-        for mode, trust in TRUST_MODES.items():
+        for mode in modes:
+            trust = TRUST_MODES[mode]
             label = f"{tag + ' ' if tag else ''}{mode}"
             renderer = pipeline = None
             if sensing == "render":

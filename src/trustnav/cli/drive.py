@@ -1,0 +1,283 @@
+"""`trustnav drive CASE`: end-to-end trust-aware driving (paper Section IV, Cases I and II): figures,
+MP4, metrics.json; the camera, control and perception options shared with ``compare``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from trustnav.cli.common import check_bounds, span
+from trustnav.outputs import OutputFolder
+
+DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames", "metrics.json",
+                 "attentive", "distracted")  # fmt: skip
+
+#: The lowest camera rate at which ``drive --perception realtime`` is allowed (frames/s).
+REALTIME_MIN_RATE = 10.0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    d = sub.add_parser(
+        "drive",
+        help="end-to-end trust-aware driving (paper Section IV, Cases I and II): figures, MP4, metrics.json",
+    )
+    d.add_argument("case", help="case-1 (attentive + distracted standing), case-2 (one walking pedestrian) or a "
+                   "scenario file (.toml, the form of sim/scenarios/case-1.toml; docs/drive.md)")  # fmt: skip
+    d.add_argument("--sensing", choices=["render", "keypoints"], default="render",
+                   help="render: rendered frames + perception (default); keypoints: projected joints")  # fmt: skip
+    d.add_argument("--state", choices=["perceived", "true"], default="perceived",
+                   help="where the controller's pedestrian positions and velocities come from: perceived "
+                   "(default: the camera, localised and tracked, with uncertainty) or true (the world's)")  # fmt: skip
+    d.add_argument("--perception", choices=["offline", "realtime"], default="offline",
+                   help="render sensing: offline (default: every frame searched in full, deterministic) or "
+                   "realtime (the search for new people beside the frame loop; results depend on machine "
+                   "load; docs/perception.md)")  # fmt: skip
+    d.add_argument("--search-seconds", type=float, default=None, metavar="S",
+                   help="with --perception realtime: make the run deterministic, the search for new people "
+                   "run in step with the frames and its findings handed over as if it took S seconds, "
+                   f"{span('search_seconds')} (the 2-core machine takes ~0.5; default: the search on its own "
+                   "thread, as fast as the machine allows)")  # fmt: skip
+    g = d.add_mutually_exclusive_group()
+    g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
+                   help="every pedestrian attentive")  # fmt: skip
+    g.add_argument("--distracted", dest="attentive", action="store_const", const=False,
+                   help="every pedestrian distracted")  # fmt: skip
+    d.add_argument("--seed", type=int, default=0, help=f"seed of sensing noise, {span('seed')} (default 0)")
+    d.add_argument("--rate", type=float, help="camera rate = trust-estimation rate, "
+                   f"{span('rate')} (default: scenario, 1)")  # fmt: skip
+    d.add_argument("--control-rate", type=float,
+                   help=f"controller rate, {span('control_rate')} (default: scenario, 20)")  # fmt: skip
+    scenario_options(d)
+    d.add_argument("--out", help="output directory (default out/<case or file stem>, out/<...>-keypoints)")
+    d.add_argument("--overwrite", action="store_true", help="replace trustnav's outputs in a non-empty --out")
+    d.add_argument("--no-video", action="store_true", help="skip drive.mp4")
+    d.add_argument("--world", choices=["sim", "carla"], default="sim",
+                   help="sim: own world (default); carla: a CARLA server (extra trustnav[carla])")  # fmt: skip
+    d.add_argument("--host", default="localhost", help="CARLA server host (--world carla)")
+    d.add_argument("--port", type=int, default=2000, help=f"CARLA server port, {span('port')} (--world carla)")
+    d.add_argument("--timeout", type=float, default=10.0,
+                   help=f"CARLA connection timeout, {span('timeout')} (default 10; --world carla)")  # fmt: skip
+    d.add_argument("--town", help="CARLA map to load, e.g. Town03 (default: the scenario's [carla] town, else "
+                   "the running world; --world carla)")  # fmt: skip
+    d.add_argument("--carla-fov", type=float, help=f"CARLA camera field of view, {span('carla_fov')} "
+                   "(default: [carla] fov_deg, else the camera's; --world carla)")  # fmt: skip
+    d.add_argument("--attentive-walker", help="CARLA walker blueprint id or index for attentive pedestrians "
+                   "(--world carla)")  # fmt: skip
+    d.add_argument("--distracted-walker", help="CARLA walker blueprint id or index for distracted pedestrians "
+                   "(--world carla)")  # fmt: skip
+    d.set_defaults(func=run)
+
+
+def scenario_options(d: argparse.ArgumentParser) -> None:
+    """The camera and control options of ``drive`` and ``compare`` (each overrides the scenario's)."""
+    c = d.add_argument_group("camera (default: the scenario's)")
+    c.add_argument("--fov", type=float, help=f"horizontal field of view, {span('fov')}")
+    c.add_argument("--camera-height", type=float, help=f"camera height above the ground, {span('camera_height')}")
+    c.add_argument("--pitch", type=float, help=f"camera pitch, > 0 looking down, {span('pitch')}")
+    k = d.add_argument_group("control (default: the scenario's)")
+    k.add_argument("--safety-radius", type=float, help=f"the margin R, {span('safety_radius')}")
+    k.add_argument("--horizon", type=int, help=f"MPC horizon N_h, {span('horizon')}")
+    k.add_argument("--v-max", type=float, help=f"speed bound of the reference, {span('v_max')}")
+    k.add_argument("--duration", type=float, help=f"time limit of an episode, {span('duration')}")
+    k.add_argument("--caution", choices=("on", "off"),
+                   help="trust-aware speed bound near pedestrians who might step out (default: the scenario's "
+                   "[control] caution; off: the paper's controller; docs/controller.md)")  # fmt: skip
+    p = d.add_argument_group("perception (default: the scenario's)")
+    p.add_argument("--perception-latency", type=float, metavar="S",
+                   help=f"seconds from a frame's capture to its people reaching the controller's estimates, "
+                   f"{span('perception_latency')} (default: the scenario's [sensing] perception_latency, 0; "
+                   "the 2-core machine's real-time perception takes ~0.1-0.4 s, docs/perception.md)")  # fmt: skip
+
+
+def run_variants(
+    case: object,
+    sensing: str,
+    attentive: bool | None,
+    seed: int,
+    rate: float | None,
+    out: Path,
+    video: bool = True,
+    control_rate: float | None = None,
+    run_variant: object = None,
+    label: str = "",
+    state: str = "perceived",
+    perception: str = "offline",
+    search_seconds: float | None = None,
+) -> list[tuple[str, dict, Path]]:
+    """Run a driving case (a preset name, a scenario file or a DriveScenario; Case II: both variants
+    unless one is asked for) and write its outputs.
+
+    ``run_variant(scenario, attentive, progress) -> DriveResult`` drives one variant (default:
+    trustnav's own world, :func:`trustnav.sim.driving.run_drive`; the CARLA bridge gives its own);
+    ``label`` tags the world in titles ("CARLA")."""
+    from trustnav.progress import step_reporter
+    from trustnav.sim.driving import load_drive_scenario, make_render_sensing, run_drive
+    from trustnav.viz.drive_plots import plot_distance, plot_top_view, write_drive_outputs
+
+    def own_world(sc, att, progress):  # type: ignore[no-untyped-def]
+        renderer = pipeline = None
+        if sensing == "render":
+            renderer, pipeline = make_render_sensing(sc, rate, realtime=perception == "realtime",
+                                                     search_seconds=search_seconds)  # fmt: skip
+        try:
+            return run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
+                             control_rate=control_rate, renderer=renderer, pipeline=pipeline,
+                             progress=progress, state=state)  # fmt: skip
+        finally:
+            if renderer is not None:
+                renderer.close()
+            if pipeline is not None and hasattr(pipeline.backend, "close"):
+                pipeline.backend.close()
+
+    drive_one = run_variant or own_world
+    sc = case if hasattr(case, "pedestrians") else load_drive_scenario(case)  # type: ignore[arg-type]
+    case = sc.name
+    if attentive is not None:
+        variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
+    elif sc.variants:
+        variants = [(v, v == "attentive") for v in sc.variants]
+    else:
+        variants = [("", None)]
+    done, results = [], []
+    where_tag = f"{label}, " if label else ""
+    for tag, att in variants:
+        where = out / tag if len(variants) > 1 else out
+        desc = f"{case}{' ' + tag if tag else ''} ({where_tag}{sensing})"
+        with step_reporter(desc, sc.duration) as progress:  # the bar opens once the world has opened
+            result = drive_one(sc, att, progress)  # type: ignore[operator]
+        metrics = result.metrics()
+        where.mkdir(parents=True, exist_ok=True)
+        write_drive_outputs(result, where, video=video)
+        (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        done.append((tag or case, metrics, where))
+        results.append(result)
+    if len(results) > 1:
+        plot_distance(results, out / "distance.png")
+        plot_top_view(results, out / "top_view.png", title=f"{sc.title} [{where_tag}{sensing} sensing]")
+        (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
+    return done
+
+
+def drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
+    for tag, m, where in done:
+        ttg = "not reached" if m["time_to_goal"] is None else f"{m['time_to_goal']:.1f} s"
+        extra = f"  detection recall {m['detection_recall']:.2f}" if m.get("detection_recall") is not None else ""
+        if m.get("perception_ms_median") is not None:
+            extra += f"  perception {m['perception_ms_median']:.0f} ms (p95 {m['perception_ms_p95']:.0f})"
+        if m.get("road_departure_max"):
+            extra += f"  off the road by up to {m['road_departure_max']:.2f} m"
+        if m.get("yield_s"):
+            extra += f"  yielded {m['yield_s']:.1f} s"
+        print(f"  {tag}: goal {ttg}  margin violations {m['margin_violations']}  relaxed steps "
+              f"{m['relaxed_steps']}  fallback steps {m['fallback_steps']}  solve {m['solve_ms_median']:.2f} ms "
+              f"(p95 {m['solve_ms_p95']:.2f}){extra}  -> {where}")  # fmt: skip
+        for p in m["pedestrians"]:
+            kind = "attentive" if p["attentive"] else "distracted"
+            who = p["name"] if kind in p["name"] else f"{p['name']} ({kind})"  # not "attentive (attentive)"
+            loc = ""
+            if p.get("localisation_error_median") is not None:
+                loc = (f"  located to {p['localisation_error_median']:.2f} m (p95 {p['localisation_error_p95']:.2f}), "
+                       f"truth in the 90 % region {p['interval_coverage']:.0%}")  # fmt: skip
+            print(f"      {who:<24} min distance {p['min_distance']:.2f} m  "
+                  f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}{loc}")  # fmt: skip
+        if m.get("state") == "perceived":
+            print(f"      pedestrians perceived by the camera (--state true: the world's); "
+                  f"identity switches {m.get('id_switches', 0)}")  # fmt: skip
+
+
+def drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """The scenario of ``args.case`` (a preset name or a scenario file) with the camera, control and
+    CARLA options of the command line applied; each refused with an error naming the option."""
+    import dataclasses
+
+    from trustnav.sim.driving import load_drive_scenario
+
+    opt = lambda name: getattr(args, name, None)  # noqa: E731  (an option a caller's namespace lacks: not given)
+    check_bounds(args, "seed", "rate", "control_rate", "port", "timeout", "fov", "camera_height", "pitch",
+                 "safety_radius", "horizon", "v_max", "duration", "carla_fov", "perception_latency")  # fmt: skip
+    sc = load_drive_scenario(args.case)
+    camera = {k: v for k, v in (("fov_deg", opt("fov")), ("up", opt("camera_height")), ("pitch_deg", opt("pitch")))
+              if v is not None}  # fmt: skip
+    control = {k: v for k, v in (("safety_radius", opt("safety_radius")), ("horizon", opt("horizon")),
+               ("reference_v_max", opt("v_max")),
+               ("caution", None if opt("caution") is None else opt("caution") == "on")) if v is not None}  # fmt: skip
+    route = {k: v for k, v in (("town", opt("town")), ("fov_deg", opt("carla_fov")),
+             ("attentive_walker", _walker_arg(opt("attentive_walker"))),
+             ("distracted_walker", _walker_arg(opt("distracted_walker")))) if v is not None}  # fmt: skip
+    changes: dict = {}
+    if camera:
+        changes["camera"] = dataclasses.replace(sc.camera, **camera)
+    if control:
+        changes["control"] = dataclasses.replace(sc.control, **control)
+    if route:
+        changes["carla"] = dataclasses.replace(sc.carla, **route)
+    if opt("duration") is not None:
+        changes["duration"] = float(opt("duration"))
+    if opt("perception_latency") is not None:
+        changes["sensing"] = dataclasses.replace(sc.sensing, perception_latency=float(opt("perception_latency")))
+    return dataclasses.replace(sc, **changes) if changes else sc
+
+
+def _walker_arg(v: str | None) -> int | str | None:
+    """A walker given on the command line: an index (digits) or a blueprint id."""
+    return int(v) if v is not None and v.isdigit() else v
+
+
+def run(args: argparse.Namespace) -> int:
+    search = getattr(args, "search_seconds", None)
+    if search is not None and getattr(args, "perception", "offline") != "realtime":
+        raise ValueError("--search-seconds models the real-time perceiver's search: it needs --perception realtime")
+    check_bounds(args, "search_seconds")
+    if getattr(args, "perception", "offline") == "realtime":
+        if args.sensing != "render":
+            raise ValueError("--perception realtime needs --sensing render (camera frames to perceive)")
+        if args.rate is None or args.rate < REALTIME_MIN_RATE:
+            raise ValueError(f"--perception realtime needs --rate >= {REALTIME_MIN_RATE:g} frames/s: what its search "
+                             "finds reaches the controller a frame later, and at 5 frames/s Case I already came "
+                             "within R (docs/perception.md)")  # fmt: skip
+    sc = drive_scenario(args)
+    route = ("town", "carla_fov", "attentive_walker", "distracted_walker")
+    if args.world != "carla" and any(getattr(args, name, None) is not None for name in route):
+        raise ValueError("--town, --carla-fov, --attentive-walker and --distracted-walker need --world carla")
+    run_variant, label, on = None, "", ""
+    errors: tuple[type[Exception], ...] = ()  # a world's failures that carry their own exit code
+    if args.world == "carla":
+        from trustnav.carla_bridge.command import CarlaCommandError, carla_runner
+
+        errors = (CarlaCommandError,)
+
+        try:
+            address, run_variant = carla_runner(args, sc.carla.options())
+        except CarlaCommandError as exc:
+            print(f"trustnav: error: {exc}", file=sys.stderr)
+            return exc.code
+        label, on = "CARLA", f" on CARLA at {address}"
+    stem = args.case if args.case in ("case-1", "case-2") else Path(args.case).stem
+    default = f"out/{stem}" if args.sensing == "render" else f"out/{stem}-{args.sensing}"
+    if args.world == "carla":
+        default += "-carla"
+    folder = OutputFolder(args.out or default, args.overwrite, DRIVE_OUTPUTS)
+    with folder:  # written beside --out, moved into place at the end (removed if the run fails)
+        try:
+            done = run_variants(sc, args.sensing, args.attentive, args.seed, args.rate, folder.path,
+                               video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
+                               label=label, state=getattr(args, "state", "perceived"),
+                               perception=getattr(args, "perception", "offline"),
+                               search_seconds=getattr(args, "search_seconds", None))  # fmt: skip
+        except errors as exc:
+            folder.discard()
+            print(f"trustnav: error: {exc}", file=sys.stderr)
+            return int(exc.code)  # type: ignore[attr-defined]
+    out = folder.out
+    done = [(tag, m, folder.final(where)) for tag, m, where in done]
+    files = "top_view.png, trust.png, distance.png, drive.mp4, frames/, metrics.json"
+    if args.no_video:
+        files = files.replace("drive.mp4, ", "")
+    if len(done) > 1:
+        runs = ", ".join(f"{tag}/" for tag, _, _ in done)
+        files = f"top_view.png, distance.png, metrics.json comparing the runs; per run in {runs}: {files}"
+    print(f"drive {sc.name}{on} ({args.sensing} sensing): wrote {out}/ ({files})")
+    drive_summary(done, out)
+    return 0
