@@ -10,6 +10,7 @@ from pathlib import Path
 from trustnav.cli.common import span
 from trustnav.cli.drive import drive_scenario, scenario_options
 from trustnav.outputs import OutputFolder
+from trustnav.viz.report import comparison_table
 
 COMPARE_OUTPUTS = ("compare.png", "metrics.json", "table.csv")
 
@@ -70,22 +71,5 @@ def run(args: argparse.Namespace) -> int:
     out = folder.out
     print(f"compare {sc.name} ({args.sensing} sensing, seed {args.seed}): wrote {out / 'compare.png'}, "
           f"{out / 'table.csv'}, {out / 'metrics.json'}")  # fmt: skip
-    compare_table(rows, sc.control.safety_radius)
+    print("\n".join(comparison_table(rows, sc.control.safety_radius)))
     return 0
-
-
-def compare_table(rows: list[dict], radius: float) -> None:
-    """The comparison as a text table: one line per run, closest approach per pedestrian."""
-    names = [p["name"] for p in rows[0]["pedestrians"]]
-    head = f"  {'run':<30}{'gamma':>7}" + "".join(f"{'min d ' + n:>18}" for n in names)
-    print(head + f"{'goal':>9}{'bend':>8}{'in R':>6}")
-    for r in rows:
-        label = f"{r['variant'] + ': ' if r['variant'] else ''}{r['mode']}"
-        gamma = "est." if r["gamma"] is None else f"{r['gamma']:.2f}"
-        goal = "-" if r["time_to_goal"] is None else f"{r['time_to_goal']:.1f} s"
-        cells = "".join(f"{p['min_distance']:>16.2f} m" for p in r["pedestrians"])
-        print(f"  {label:<30}{gamma:>7}{cells}{goal:>9}{r['max_lateral_offset']:>6.2f} m{r['margin_violations']:>6}")
-    print(
-        f"  (min d: closest true distance, R = {radius:g} m; gamma: the barrier rate the controller got, est. = "
-        "from each pedestrian's estimated trust; bend: largest offset from the lane centre; in R: steps inside R)"
-    )

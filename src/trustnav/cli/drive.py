@@ -4,12 +4,13 @@ MP4, metrics.json; the camera, control and perception options shared with ``comp
 from __future__ import annotations
 
 import argparse
-import json
+import functools
 import sys
 from pathlib import Path
 
 from trustnav.cli.common import check_bounds, span
 from trustnav.outputs import OutputFolder
+from trustnav.viz.report import drive_summary
 
 DRIVE_OUTPUTS = ("drive.mp4", "top_view.png", "trust.png", "distance.png", "frames", "metrics.json",
                  "attentive", "distracted")  # fmt: skip
@@ -106,121 +107,44 @@ def run_variants(
     perception: str = "offline",
     search_seconds: float | None = None,
 ) -> list[tuple[str, dict, Path]]:
-    """Run a driving case (a preset name, a scenario file or a DriveScenario; Case II: both variants
-    unless one is asked for) and write its outputs.
-
-    ``run_variant(scenario, attentive, progress) -> DriveResult`` drives one variant (default:
-    trustnav's own world, :func:`trustnav.sim.driving.run_drive`; the CARLA bridge gives its own);
-    ``label`` tags the world in titles ("CARLA")."""
+    """Drive a case (a preset name, a scenario file or a DriveScenario; its variants:
+    :func:`~trustnav.sim.driving.variants.drive_variants`) and write its outputs into ``out``.
+    ``run_variant(scenario, attentive, progress)`` drives one variant (default: trustnav's own world;
+    the CARLA bridge gives its own); ``label`` tags the world in titles ("CARLA")."""
     from trustnav.progress import step_reporter
-    from trustnav.sim.driving import load_drive_scenario, make_render_sensing, run_drive
-    from trustnav.viz.drive_plots import plot_distance, plot_top_view, write_drive_outputs
+    from trustnav.sim.driving import load_drive_scenario
+    from trustnav.sim.driving.variants import drive_variant, drive_variants
+    from trustnav.viz.drive_plots import write_variant_outputs
 
-    def own_world(sc, att, progress):  # type: ignore[no-untyped-def]
-        renderer = pipeline = None
-        if sensing == "render":
-            renderer, pipeline = make_render_sensing(sc, rate, realtime=perception == "realtime",
-                                                     search_seconds=search_seconds)  # fmt: skip
-        try:
-            return run_drive(sc, sensing=sensing, seed=seed, attentive=att, capture_rate=rate,
-                             control_rate=control_rate, renderer=renderer, pipeline=pipeline,
-                             progress=progress, state=state)  # fmt: skip
-        finally:
-            if renderer is not None:
-                renderer.close()
-            if pipeline is not None and hasattr(pipeline.backend, "close"):
-                pipeline.backend.close()
-
-    drive_one = run_variant or own_world
     sc = case if hasattr(case, "pedestrians") else load_drive_scenario(case)  # type: ignore[arg-type]
-    case = sc.name
-    if attentive is not None:
-        variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
-    elif sc.variants:
-        variants = [(v, v == "attentive") for v in sc.variants]
-    else:
-        variants = [("", None)]
-    done, results = [], []
-    where_tag = f"{label}, " if label else ""
-    for tag, att in variants:
-        where = out / tag if len(variants) > 1 else out
-        desc = f"{case}{' ' + tag if tag else ''} ({where_tag}{sensing})"
-        with step_reporter(desc, sc.duration) as progress:  # the bar opens once the world has opened
-            result = drive_one(sc, att, progress)  # type: ignore[operator]
-        metrics = result.metrics()
-        where.mkdir(parents=True, exist_ok=True)
-        write_drive_outputs(result, where, video=video)
-        (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        done.append((tag or case, metrics, where))
-        results.append(result)
-    if len(results) > 1:
-        plot_distance(results, out / "distance.png")
-        plot_top_view(results, out / "top_view.png", title=f"{sc.title} [{where_tag}{sensing} sensing]")
-        (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
-    return done
-
-
-def drive_summary(done: list[tuple[str, dict, Path]], out: Path) -> None:
-    for tag, m, where in done:
-        ttg = "not reached" if m["time_to_goal"] is None else f"{m['time_to_goal']:.1f} s"
-        extra = f"  detection recall {m['detection_recall']:.2f}" if m.get("detection_recall") is not None else ""
-        if m.get("perception_ms_median") is not None:
-            extra += f"  perception {m['perception_ms_median']:.0f} ms (p95 {m['perception_ms_p95']:.0f})"
-        if m.get("road_departure_max"):
-            extra += f"  off the road by up to {m['road_departure_max']:.2f} m"
-        if m.get("yield_s"):
-            extra += f"  yielded {m['yield_s']:.1f} s"
-        print(f"  {tag}: goal {ttg}  margin violations {m['margin_violations']}  relaxed steps "
-              f"{m['relaxed_steps']}  fallback steps {m['fallback_steps']}  solve {m['solve_ms_median']:.2f} ms "
-              f"(p95 {m['solve_ms_p95']:.2f}){extra}  -> {where}")  # fmt: skip
-        for p in m["pedestrians"]:
-            kind = "attentive" if p["attentive"] else "distracted"
-            who = p["name"] if kind in p["name"] else f"{p['name']} ({kind})"  # not "attentive (attentive)"
-            loc = ""
-            if p.get("localisation_error_median") is not None:
-                loc = (f"  located to {p['localisation_error_median']:.2f} m (p95 {p['localisation_error_p95']:.2f}), "
-                       f"truth in the 90 % region {p['interval_coverage']:.0%}")  # fmt: skip
-            print(f"      {who:<24} min distance {p['min_distance']:.2f} m  "
-                  f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}{loc}")  # fmt: skip
-        if m.get("state") == "perceived":
-            print(f"      pedestrians perceived by the camera (--state true: the world's); "
-                  f"identity switches {m.get('id_switches', 0)}")  # fmt: skip
+    own = functools.partial(drive_variant, sensing=sensing, seed=seed, capture_rate=rate, control_rate=control_rate,
+                            state=state, perception=perception, search_seconds=search_seconds)  # fmt: skip
+    where = f"{label}, " if label else ""
+    runs = drive_variants(sc, attentive, run_variant or own,  # type: ignore[arg-type]
+                          lambda tag: step_reporter(f"{sc.name}{' ' + tag if tag else ''} ({where}{sensing})",
+                                                    sc.duration))  # fmt: skip
+    return write_variant_outputs(runs, out, video=video, title=f"{sc.title} [{where}{sensing} sensing]")
 
 
 def drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """The scenario of ``args.case`` (a preset name or a scenario file) with the camera, control and
     CARLA options of the command line applied; each refused with an error naming the option."""
-    import dataclasses
-
     from trustnav.sim.driving import load_drive_scenario
 
     opt = lambda name: getattr(args, name, None)  # noqa: E731  (an option a caller's namespace lacks: not given)
     check_bounds(args, "seed", "rate", "control_rate", "port", "timeout", "fov", "camera_height", "pitch",
                  "safety_radius", "horizon", "v_max", "duration", "carla_fov", "perception_latency")  # fmt: skip
-    sc = load_drive_scenario(args.case)
-    camera = {k: v for k, v in (("fov_deg", opt("fov")), ("up", opt("camera_height")), ("pitch_deg", opt("pitch")))
-              if v is not None}  # fmt: skip
-    control = {k: v for k, v in (("safety_radius", opt("safety_radius")), ("horizon", opt("horizon")),
-               ("reference_v_max", opt("v_max")),
-               ("caution", None if opt("caution") is None else opt("caution") == "on")) if v is not None}  # fmt: skip
-    route = {k: v for k, v in (("town", opt("town")), ("fov_deg", opt("carla_fov")),
-             ("attentive_walker", _walker_arg(opt("attentive_walker"))),
-             ("distracted_walker", _walker_arg(opt("distracted_walker")))) if v is not None}  # fmt: skip
-    changes: dict = {}
-    if camera:
-        changes["camera"] = dataclasses.replace(sc.camera, **camera)
-    if control:
-        changes["control"] = dataclasses.replace(sc.control, **control)
-    if route:
-        changes["carla"] = dataclasses.replace(sc.carla, **route)
-    if opt("duration") is not None:
-        changes["duration"] = float(opt("duration"))
-    if opt("perception_latency") is not None:
-        changes["sensing"] = dataclasses.replace(sc.sensing, perception_latency=float(opt("perception_latency")))
-    return dataclasses.replace(sc, **changes) if changes else sc
+    caution, latency = opt("caution"), opt("perception_latency")
+    return load_drive_scenario(args.case).with_options(
+        opt("duration"), camera={"fov_deg": opt("fov"), "up": opt("camera_height"), "pitch_deg": opt("pitch")},
+        control={"safety_radius": opt("safety_radius"), "horizon": opt("horizon"), "reference_v_max": opt("v_max"),
+                 "caution": None if caution is None else caution == "on"},
+        carla={"town": opt("town"), "fov_deg": opt("carla_fov"), "attentive_walker": _walker(opt("attentive_walker")),
+               "distracted_walker": _walker(opt("distracted_walker"))},
+        sensing={"perception_latency": None if latency is None else float(latency)})  # fmt: skip
 
 
-def _walker_arg(v: str | None) -> int | str | None:
+def _walker(v: str | None) -> int | str | None:
     """A walker given on the command line: an index (digits) or a blueprint id."""
     return int(v) if v is not None and v.isdigit() else v
 
@@ -279,5 +203,5 @@ def run(args: argparse.Namespace) -> int:
         runs = ", ".join(f"{tag}/" for tag, _, _ in done)
         files = f"top_view.png, distance.png, metrics.json comparing the runs; per run in {runs}: {files}"
     print(f"drive {sc.name}{on} ({args.sensing} sensing): wrote {out}/ ({files})")
-    drive_summary(done, out)
+    print("\n".join(drive_summary(done)))
     return 0

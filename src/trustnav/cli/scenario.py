@@ -6,6 +6,7 @@ import argparse
 import json
 
 from trustnav.outputs import OutputFolder
+from trustnav.viz.report import scenario_summary
 
 SCENARIO_OUTPUTS = ("paper-*.png", "metrics.json")
 
@@ -35,25 +36,5 @@ def run(args: argparse.Namespace) -> int:
         fig = folder.final(plot_scenario(result, folder.path))
         (folder.path / "metrics.json").write_text(json.dumps(result.metrics, indent=2))
     print(f"{args.name} ({args.solver}): wrote {fig} and {folder.out / 'metrics.json'}")
-    summary(result.metrics)
+    print("\n".join(scenario_summary(result.metrics)))
     return 0
-
-
-def summary(m: dict) -> None:
-    def line(tag: str, r: dict) -> None:
-        dist = ", ".join(f"{d:.3f}" for d in r["min_distance"])
-        print(f"  {tag:<28} min distance [{dist}]  steps to goal {r['steps_to_goal']}  "
-              f"margin violations {r['margin_violations']}  solver failures {r['solver_failures']}")  # fmt: skip
-
-    if "runs" in m:
-        for r in m["runs"]:
-            line(f"trust {r['trust']:g}" if "trust" in r else f"N_h {r['horizon']}", r)
-        for timing, runs in m.get("timings", {}).items():
-            if timing == m["timing"]:
-                continue
-            for r in runs:
-                line(f"N_h {r['horizon']} ({timing})", r)
-    else:
-        line("trust-aware", m)
-        if "control_equal_trust" in m:
-            line("control (all trusts 1.0)", m["control_equal_trust"])

@@ -39,6 +39,7 @@ __all__ = [
     "write_animation",
     "write_demo_outputs",
     "write_drive_outputs",
+    "write_variant_outputs",
 ]
 
 #: matplotlib colour of a trust value (green > 0.7, orange > 0.4, red otherwise)
@@ -598,6 +599,30 @@ def write_drive_outputs(
     if video:
         paths["video"] = write_animation(result, out / "drive.mp4", frames, fps=result.scenario.control.rate)
     return paths
+
+
+def write_variant_outputs(
+    runs: Sequence[tuple[str, DriveResult]], out: str | Path, video: bool = True, title: str = ""
+) -> list[tuple[str, dict[str, Any], Path]]:
+    """Write a drive's outputs: per run (tag, result) its figures, frames, animation and
+    metrics.json (several runs: each in ``out/<tag>/``, and the runs compared in ``out``'s top view,
+    distance plot and metrics.json; ``title``: the top view's). Returns (tag, metrics, folder) per
+    run (an empty tag: the scenario's name)."""
+    out = Path(out)
+    done = []
+    for tag, result in runs:
+        where = out / tag if len(runs) > 1 else out
+        metrics = result.metrics()
+        where.mkdir(parents=True, exist_ok=True)
+        write_drive_outputs(result, where, video=video)
+        (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        done.append((tag or result.scenario.name, metrics, where))
+    if len(runs) > 1:
+        results = [r for _, r in runs]
+        plot_distance(results, out / "distance.png")
+        plot_top_view(results, out / "top_view.png", title=title)
+        (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
+    return done
 
 
 def write_demo_outputs(demo: Any, out: str | Path, video: bool = True) -> dict[str, Path]:

@@ -19,6 +19,7 @@ import numpy as np
 
 from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive, make_sensor, prepare_scenario
 from trustnav.sim.driving.sensing import make_render_sensing
+from trustnav.sim.driving.variants import variants_of
 from trustnav.sim.driving.world import DriveScenario
 from trustnav.sim.engine import Observation
 from trustnav.trust.traits import gamma as gamma_of
@@ -104,15 +105,9 @@ def compare_trust(
     unknown = [m for m in modes if m not in TRUST_MODES]
     if unknown or not modes:
         raise ValueError(f"modes must be keys of TRUST_MODES {tuple(TRUST_MODES)}, got {tuple(modes)!r}")
-    if attentive is not None:
-        variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
-    elif scenario.variants:
-        variants = [(v, v == "attentive") for v in scenario.variants]
-    else:
-        variants = [("", None)]
     g = scenario.control.gamma
     runs = []
-    for tag, att in variants:
+    for tag, att in variants_of(scenario, attentive):
         sc = prepare_scenario(scenario, att, control_rate)
         for mode in modes:
             trust = TRUST_MODES[mode]
