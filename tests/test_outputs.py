@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-import trustnav.cli.drive as drive_command
+import trustnav.sim.driving.variants as variants
 from trustnav.cli import main
 from trustnav.outputs import OutputFolder
 
@@ -134,7 +134,7 @@ def test_failed_drive_and_scenario_leave_nothing_behind(tmp_path, monkeypatch, c
     def failing(*args, **kwargs):
         raise ValueError("the world fell apart")
 
-    monkeypatch.setattr(drive_command, "run_variants", failing)
+    monkeypatch.setattr(variants, "drive_variants", failing)
     assert main(["drive", "case-1", "--out", str(tmp_path / "d")]) == 2
     assert "the world fell apart" in _one_line(capsys.readouterr().err)
     monkeypatch.setattr(paper, "run_scenario", lambda name, solver="sqp": (_ for _ in ()).throw(KeyboardInterrupt))

@@ -21,13 +21,13 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["OutputFolder", "TrackTable"]
+__all__ = ["OutputFolder", "TrackTable", "no_interrupts"]
 
 _PARTIAL = ".trustnav-{pid}-{token}.partial"
 
 
 @contextlib.contextmanager
-def _no_interrupts() -> Iterator[None]:
+def no_interrupts() -> Iterator[None]:
     """Ctrl-C and SIGTERM wait (are ignored) while files are moved into place: a move is never cut short."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -113,7 +113,7 @@ class OutputFolder:
     def commit(self) -> Path:
         """Move the outputs into ``out`` (Ctrl-C waits until they are all there); returns ``out``."""
         tmp = self.path
-        with _no_interrupts():
+        with no_interrupts():
             if not self.out.exists():
                 tmp.rename(self.out.resolve())
             else:
@@ -132,7 +132,7 @@ class OutputFolder:
     def discard(self) -> None:
         """Remove what the run wrote; ``out`` stays as it was."""
         if self._path is not None:
-            with _no_interrupts():
+            with no_interrupts():
                 shutil.rmtree(self._path, ignore_errors=True)
         self.state = "discarded"
 
@@ -143,10 +143,17 @@ class OutputFolder:
         where, k = real.with_name(f"{real.name}.{suffix}"), 2
         while where.exists():
             where, k = real.with_name(f"{real.name}.{suffix}-{k}"), k + 1
-        with _no_interrupts():
+        with no_interrupts():
             self.path.rename(where)
         self.state = "kept aside"
         return self.out.with_name(where.name)
+
+    def keep(self, earlier: bool) -> tuple[Path, str]:
+        """Keep what an interrupted run wrote: committed into ``out`` when it held no ``earlier``
+        outputs, else kept aside (:meth:`keep_aside`); returns the folder and a note for the user."""
+        if earlier:
+            return self.keep_aside(), f" ({self.out} keeps the earlier outputs)"
+        return self.commit(), ""
 
     def __enter__(self) -> OutputFolder:
         self.open()

@@ -1,13 +1,9 @@
-"""`trustnav ...` entry points, one module per command, each thin: parse, call the library, report.
+"""`trustnav ...`: one module per command, each thin (parse, call the library, report); docs/cli.md.
 
-Output rule (every command but ``sweep``, which resumes into its folder on purpose): a folder that
-already holds files is never written into silently. ``--overwrite`` replaces trustnav's own
-outputs there (files of other names are left alone); default folders are named after the run
-(scenario and solver, case and sensing) so two different runs never share one; ``demo`` replaces
-its own default folder ``out/demo``, since it is run again and again. Nothing lost, nothing mixed:
-every command writes through :class:`trustnav.outputs.OutputFolder`. Every number an option takes is
-checked against the range its help text gives (:data:`trustnav.cli.common.BOUNDS`).
-"""
+Output rule (all but ``sweep``, which resumes): a folder holding files is never written into silently
+(``--overwrite`` replaces trustnav's own outputs; ``demo`` replaces its default ``out/demo``); every
+command writes through :class:`trustnav.outputs.OutputFolder`, numbers are checked against
+:data:`trustnav.cli.common.BOUNDS`."""
 
 from __future__ import annotations
 
@@ -17,7 +13,7 @@ import sys
 import threading
 
 from trustnav.cli import compare, demo, drive, estimate, scenario, sweep
-from trustnav.cli.common import BOUNDS, Parser, one_line, raise_interrupt
+from trustnav.cli.common import BOUNDS, Parser, one_line
 
 __all__ = ["BOUNDS", "build_parser", "main"]
 
@@ -38,7 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     to do, 2 a refused input, 130 interrupted; CARLA failures their own)."""
     args = build_parser().parse_args(argv)
     main_thread = threading.current_thread() is threading.main_thread()
-    old_term = signal.signal(signal.SIGTERM, raise_interrupt) if main_thread else None  # `timeout`, `kill`
+    # SIGTERM (`timeout`, `kill`) handled as Ctrl-C: the default SIGINT handler raises KeyboardInterrupt
+    old_term = signal.signal(signal.SIGTERM, signal.default_int_handler) if main_thread else None
     try:
         return int(args.func(args) or 0)
     except (ValueError, ImportError) as exc:

@@ -1,9 +1,5 @@
-"""What every command shares: the ranges of the numbers options take, the one-line parser error,
-SIGTERM as Ctrl-C.
-
-Every number an option takes is checked against the range its help text gives (:data:`BOUNDS`),
-with a one-line error naming the option.
-"""
+"""What every command shares: the range of every number an option takes (:data:`BOUNDS`, checked
+with a one-line error naming the option), the one-line parser error."""
 
 from __future__ import annotations
 
@@ -13,7 +9,7 @@ import sys
 
 from trustnav.schema import Integer, Invalid, Number
 
-__all__ = ["BOUNDS", "Parser", "check_bounds", "one_line", "raise_interrupt", "span"]
+__all__ = ["BOUNDS", "Parser", "check_bounds", "one_line", "span"]
 
 #: option -> its rule (trustnav.schema): the documented range of every number an option takes. Rates
 #: and the CARLA timeout are bounded so that no run takes hours.
@@ -72,10 +68,6 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str):  # type: ignore[override]
         print(f"{self.prog}: error: {message}", file=sys.stderr)
         raise SystemExit(2)
-
-
-def raise_interrupt(signum, frame) -> None:  # SIGTERM (e.g. `timeout`) handled as Ctrl-C
-    raise KeyboardInterrupt
 
 
 def one_line(exc: BaseException) -> str:

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from trustnav.cli.common import span
@@ -39,11 +38,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``trustnav compare SCENARIO``: trust-aware beside constant trust 0 and 1 (one figure, a table)."""
-    import csv
-
     from trustnav.progress import labelled_reporter
     from trustnav.sim.driving.compare import compare_trust, comparison_rows
-    from trustnav.viz.drive_plots import plot_trust_comparison
+    from trustnav.viz.drive_plots import write_comparison_outputs
 
     sc = drive_scenario(args)
     stem = args.case if args.case in ("case-1", "case-2") else Path(args.case).stem
@@ -53,21 +50,7 @@ def run(args: argparse.Namespace) -> int:
                              control_rate=args.control_rate, state=args.state, progress=progress)  # fmt: skip
     rows = comparison_rows(comp)
     with folder:
-        groups = [(v, [(r.mode, r.result) for r in runs]) for v, runs in comp.by_variant()]
-        plot_trust_comparison(groups, folder.path / "compare.png")
-        metrics = {"scenario": sc.name, "sensing": args.sensing, "seed": args.seed, "state": args.state,
-                   "table": rows, "runs": [dict(variant=r.variant, mode=r.mode, **r.result.metrics())
-                                           for r in comp.runs]}  # fmt: skip
-        (folder.path / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        with open(folder.path / "table.csv", "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["variant", "mode", "trust_given", "gamma", "pedestrian", "attentive", "min_distance",
-                        "final_trust", "time_to_goal", "max_lateral_offset", "margin_violations"])  # fmt: skip
-            for r in rows:
-                for p in r["pedestrians"]:
-                    w.writerow([r["variant"], r["mode"], r["trust_given"], r["gamma"], p["name"], p["attentive"],
-                                p["min_distance"], p["final_trust"], r["time_to_goal"], r["max_lateral_offset"],
-                                r["margin_violations"]])  # fmt: skip
+        write_comparison_outputs(comp, rows, folder.path, args.state)
     out = folder.out
     print(f"compare {sc.name} ({args.sensing} sensing, seed {args.seed}): wrote {out / 'compare.png'}, "
           f"{out / 'table.csv'}, {out / 'metrics.json'}")  # fmt: skip

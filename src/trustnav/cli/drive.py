@@ -92,40 +92,6 @@ def scenario_options(d: argparse.ArgumentParser) -> None:
                    "the 2-core machine's real-time perception takes ~0.1-0.4 s, docs/perception.md)")  # fmt: skip
 
 
-def run_variants(
-    case: object,
-    sensing: str,
-    attentive: bool | None,
-    seed: int,
-    rate: float | None,
-    out: Path,
-    video: bool = True,
-    control_rate: float | None = None,
-    run_variant: object = None,
-    label: str = "",
-    state: str = "perceived",
-    perception: str = "offline",
-    search_seconds: float | None = None,
-) -> list[tuple[str, dict, Path]]:
-    """Drive a case (a preset name, a scenario file or a DriveScenario; its variants:
-    :func:`~trustnav.sim.driving.variants.drive_variants`) and write its outputs into ``out``.
-    ``run_variant(scenario, attentive, progress)`` drives one variant (default: trustnav's own world;
-    the CARLA bridge gives its own); ``label`` tags the world in titles ("CARLA")."""
-    from trustnav.progress import step_reporter
-    from trustnav.sim.driving import load_drive_scenario
-    from trustnav.sim.driving.variants import drive_variant, drive_variants
-    from trustnav.viz.drive_plots import write_variant_outputs
-
-    sc = case if hasattr(case, "pedestrians") else load_drive_scenario(case)  # type: ignore[arg-type]
-    own = functools.partial(drive_variant, sensing=sensing, seed=seed, capture_rate=rate, control_rate=control_rate,
-                            state=state, perception=perception, search_seconds=search_seconds)  # fmt: skip
-    where = f"{label}, " if label else ""
-    runs = drive_variants(sc, attentive, run_variant or own,  # type: ignore[arg-type]
-                          lambda tag: step_reporter(f"{sc.name}{' ' + tag if tag else ''} ({where}{sensing})",
-                                                    sc.duration))  # fmt: skip
-    return write_variant_outputs(runs, out, video=video, title=f"{sc.title} [{where}{sensing} sensing]")
-
-
 def drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """The scenario of ``args.case`` (a preset name or a scenario file) with the camera, control and
     CARLA options of the command line applied; each refused with an error naming the option."""
@@ -150,6 +116,10 @@ def _walker(v: str | None) -> int | str | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from trustnav.progress import step_reporter
+    from trustnav.sim.driving.variants import drive_variant, drive_variants
+    from trustnav.viz.drive_plots import write_variant_outputs
+
     search = getattr(args, "search_seconds", None)
     if search is not None and getattr(args, "perception", "offline") != "realtime":
         raise ValueError("--search-seconds models the real-time perceiver's search: it needs --perception realtime")
@@ -171,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
         from trustnav.carla_bridge.command import CarlaCommandError, carla_runner
 
         errors = (CarlaCommandError,)
-
         try:
             address, run_variant = carla_runner(args, sc.carla.options())
         except CarlaCommandError as exc:
@@ -179,29 +148,27 @@ def run(args: argparse.Namespace) -> int:
             return exc.code
         label, on = "CARLA", f" on CARLA at {address}"
     stem = args.case if args.case in ("case-1", "case-2") else Path(args.case).stem
-    default = f"out/{stem}" if args.sensing == "render" else f"out/{stem}-{args.sensing}"
-    if args.world == "carla":
-        default += "-carla"
+    default = f"out/{stem}{'' if args.sensing == 'render' else '-' + args.sensing}{'-carla' * (args.world == 'carla')}"
     folder = OutputFolder(args.out or default, args.overwrite, DRIVE_OUTPUTS)
+    own = functools.partial(drive_variant, sensing=args.sensing, seed=args.seed, capture_rate=args.rate,
+                            control_rate=args.control_rate, state=getattr(args, "state", "perceived"),
+                            perception=getattr(args, "perception", "offline"), search_seconds=search)  # fmt: skip
+    world = f"{label}, " if label else ""
     with folder:  # written beside --out, moved into place at the end (removed if the run fails)
         try:
-            done = run_variants(sc, args.sensing, args.attentive, args.seed, args.rate, folder.path,
-                               video=not args.no_video, control_rate=args.control_rate, run_variant=run_variant,
-                               label=label, state=getattr(args, "state", "perceived"),
-                               perception=getattr(args, "perception", "offline"),
-                               search_seconds=getattr(args, "search_seconds", None))  # fmt: skip
+            runs = drive_variants(sc, args.attentive, run_variant or own, lambda tag: step_reporter(
+                f"{sc.name}{' ' + tag if tag else ''} ({world}{args.sensing})", sc.duration))  # fmt: skip
         except errors as exc:
             folder.discard()
             print(f"trustnav: error: {exc}", file=sys.stderr)
             return int(exc.code)  # type: ignore[attr-defined]
-    out = folder.out
+        title = f"{sc.title} [{world}{args.sensing} sensing]"
+        done = write_variant_outputs(runs, folder.path, video=not args.no_video, title=title)
     done = [(tag, m, folder.final(where)) for tag, m, where in done]
-    files = "top_view.png, trust.png, distance.png, drive.mp4, frames/, metrics.json"
-    if args.no_video:
-        files = files.replace("drive.mp4, ", "")
+    files = f"top_view.png, trust.png, distance.png, {'' if args.no_video else 'drive.mp4, '}frames/, metrics.json"
     if len(done) > 1:
         runs = ", ".join(f"{tag}/" for tag, _, _ in done)
         files = f"top_view.png, distance.png, metrics.json comparing the runs; per run in {runs}: {files}"
-    print(f"drive {sc.name}{on} ({args.sensing} sensing): wrote {out}/ ({files})")
+    print(f"drive {sc.name}{on} ({args.sensing} sensing): wrote {folder.out}/ ({files})")
     print("\n".join(drive_summary(done)))
     return 0

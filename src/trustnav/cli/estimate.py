@@ -5,13 +5,11 @@ tracks.csv/json (:class:`trustnav.outputs.TrackTable`), atomically (:class:`trus
 from __future__ import annotations
 
 import argparse
-import json
-import signal
+import contextlib
 import sys
-import threading
 
-from trustnav.cli.common import check_bounds, raise_interrupt, span
-from trustnav.outputs import OutputFolder, TrackTable
+from trustnav.cli.common import check_bounds, span
+from trustnav.outputs import OutputFolder, no_interrupts
 
 ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json", "rejected.json")
 
@@ -97,8 +95,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from trustnav.perception.frames import plan_sequences
+    from trustnav.perception.estimate import estimate_sequences
+    from trustnav.perception.face import FACE_FIELDS
+    from trustnav.perception.frames import frame_count, plan_sequences
     from trustnav.perception.looking import LookingModel
+    from trustnav.perception.optional_backends import make_backend
+    from trustnav.progress import Progress
+    from trustnav.trust.params import TRUST_LAWS
+    from trustnav.viz.annotate import EstimateOutput, gui_available, show
+    from trustnav.viz.report import estimate_summary
 
     # everything that can be refused is refused before the output folder is touched
     check_bounds(args, "fps", "scan_frames", "sharpen", "camera_height", "fov", "pitch")
@@ -110,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.fov is not None or args.pitch is not None:
         raise ValueError("--fov and --pitch place people on the ground only with --camera-height")
     check_bounds(args, "max_frames", "max_seconds", "open_timeout")
-    if args.show and not _gui_available():
+    if args.show and not gui_available():
         raise ValueError("--show needs an OpenCV that can open windows; this one is headless "
                          "(opencv-python-headless): write the annotated output with --mp4 instead")  # fmt: skip
     if args.realtime:
@@ -139,138 +144,65 @@ def run(args: argparse.Namespace) -> int:
         from trustnav.perception.face import FaceConfig, FaceEyeContact
 
         face = FaceEyeContact(FaceConfig(fov_deg=70.0 if args.fov is None else args.fov))
+    folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
+    earlier = folder.has_earlier_outputs()
     live_source = None
     if sequences[0].kind == "live":  # opened before anything is written: a bad source fails cleanly
         from trustnav.perception.live import LiveSource
 
         live_source = LiveSource(sequences[0].source, open_timeout=args.open_timeout, read_timeout=args.open_timeout)
-    try:
-        return _write_run(args, sequences, eye, face, ground, live_source)
-    finally:
-        if live_source is not None:
-            live_source.close()  # also when the run failed before reading it
-
-
-def _gui_available() -> bool:
-    """Whether this OpenCV can open windows (the headless build trustnav depends on cannot)."""
-    import cv2
-
-    try:
-        cv2.namedWindow("trustnav-probe", cv2.WINDOW_NORMAL)
-        cv2.destroyWindow("trustnav-probe")
-    except cv2.error:
-        return False
-    return True
-
-
-def _show(img, title: str) -> bool:
-    """Show an annotated frame; True when the user pressed q or Esc."""
-    import cv2
-
-    cv2.imshow(f"trustnav estimate: {title}", img)
-    return (cv2.waitKey(1) & 0xFF) in (ord("q"), 27)
-
-
-def _write_run(args: argparse.Namespace, sequences, eye, face, ground, live_source) -> int:  # type: ignore[no-untyped-def]
-    """Run :func:`estimate_sequences` (arguments checked, inputs planned), writing tables and pictures."""
-    from trustnav.perception.estimate import estimate_sequences
-    from trustnav.perception.face import FACE_FIELDS
-    from trustnav.perception.frames import frame_count
-    from trustnav.perception.live import frames_due
-    from trustnav.perception.optional_backends import make_backend
-    from trustnav.progress import Progress
-    from trustnav.trust.params import MOVING_AVERAGE_TRUST, PAPER_TRUST, SECONDS_TRUST
-    from trustnav.viz.annotate import AnnotatedOutput, annotate
-
-    folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
-    earlier = folder.has_earlier_outputs()
-    with folder:  # written beside --out, moved into place at the end (removed if the run fails)
-        out = folder.path
-        kwargs = {}
-        if args.backend == "mediapipe":
-            kwargs = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search,
-                      "proposer": args.proposer, "detector_model": args.detector_model}  # fmt: skip
-        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime", **kwargs)
-        sink = TrackTable(out, (() if face is None else FACE_FIELDS) + (() if ground is None else ground.FIELDS))
-        images = AnnotatedOutput(out, sequences, args.mp4)
-        read = skipped = 0
-        rejected: list[dict] = []  # proposals the landmark model or the geometry gate turned down
+    # written beside --out, moved into place at the end (removed if the run fails); the live source closed in any case
+    with folder, contextlib.closing(live_source) if live_source is not None else contextlib.nullcontext():
+        mediapipe = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search,
+                     "proposer": args.proposer, "detector_model": args.detector_model}  # fmt: skip
+        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime",
+                               **(mediapipe if args.backend == "mediapipe" else {}))  # fmt: skip
+        extra = (() if face is None else FACE_FIELDS) + (() if ground is None else ground.FIELDS)
+        output = EstimateOutput(folder.path, sequences, args.mp4, extra, not args.no_images,
+                                hasattr(backend, "last_rejections"))  # fmt: skip
         is_live = sequences[0].kind == "live"
         total = None if is_live else frame_count([f for s in sequences for f in s.files])
-        if total is not None and args.max_frames is not None:
-            total = min(total, args.max_frames)
-        bar = Progress(total, "estimate", "frame")
-        cues = None
-        if face is not None:  # eye contact from the face too, fused with LOOKING
-            from trustnav.perception.cues import default_cues, with_face
-
-            cues = lambda: with_face(default_cues(eye), face)  # noqa: E731
-        law = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST, "moving-average": MOVING_AVERAGE_TRUST}[args.trust]
-        frames = estimate_sequences(sequences, backend, eye, cues=cues, trust=law, fps=args.fps, ground=ground,
-                                    max_frames=args.max_frames, max_seconds=args.max_seconds, live=live_source,
+        bar = Progress(total and min(total, args.max_frames or total), "estimate", "frame")
+        frames = estimate_sequences(sequences, backend, eye, face=face, trust=TRUST_LAWS[args.trust], fps=args.fps,
+                                    ground=ground, max_frames=args.max_frames, max_seconds=args.max_seconds,
+                                    live=live_source, max_gap=args.open_timeout,
                                     on_stream_end=lambda msg: bar.write(f"trustnav: {msg}; stopping"))  # fmt: skip
-        main_thread = threading.current_thread() is threading.main_thread()
-        old_term = signal.signal(signal.SIGTERM, raise_interrupt) if main_thread else None
+        read = skipped = 0
         completed = interrupted = False  # completed: every sequence read to its end (the bar shows 100 %)
-        seq, t_first, written = None, None, 0  # live: capture time of the first frame, video frames written
+        seq = None
         try:
             for f in frames:
                 res = f.result
                 if f.sequence is not seq:
-                    seq, t_first, written = f.sequence, None, 0
-                    images.start(seq, f.fps)
+                    seq = f.sequence
                     bar.describe(seq.label[-30:])
                 if res.error is not None:
                     skipped += 1
                     bar.write(f"trustnav: skipped frame {res.name}: {res.error}")
                 bar.update(1)
-                if res.error is not None:
-                    continue
-                read += 1
-                sink.add(res.records)
-                rejected.extend(f.rejected)
-                if not args.no_images or args.show:
-                    img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people], f.labels)
-                    if not args.no_images:
-                        repeat = 1
-                        if seq.kind == "live":  # the video plays in real time at the rate achieved
-                            t_first = res.time if t_first is None else t_first
-                            most = max(1, round(f.fps * args.open_timeout))  # a jump in a stream's clock
-                            repeat = frames_due(res.time, t_first, f.fps, written, most)
-                        for _ in range(repeat):
-                            images.add(res.name, img)
-                        written += repeat
-                    if args.show and _show(img, seq.label):
+                if res.error is None:
+                    read += 1
+                    img = output.add(f, draw=args.show)
+                    if args.show and show(img, seq.label):
                         raise KeyboardInterrupt  # q or Esc in the window: stop as Ctrl-C does
             completed = True
         except KeyboardInterrupt:
             interrupted = True
         finally:
-            # the records are saved whatever happens; a second Ctrl-C must not cut this short
-            old_int = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
-            try:
+            with no_interrupts():  # the records are saved whatever happens; a second Ctrl-C must not cut this short
                 frames.close()  # a live source closed, its dropped frames counted
                 bar.close(finished=completed)
-                images.close()
-                sink.close()
-                if hasattr(backend, "last_rejections"):
-                    (out / "rejected.json").write_text(json.dumps(rejected, indent=1))
+                output.close()
                 if hasattr(backend, "close"):
                     backend.close()
-            finally:
-                if main_thread:
-                    signal.signal(signal.SIGINT, old_int)
-                    signal.signal(signal.SIGTERM, old_term)
-        rows, dropped = sink.rows, (live_source.dropped if is_live else 0)
+        rows, dropped = output.rows, (live_source.dropped if is_live else None)
         if interrupted:
-            # the records so far are kept: in --out when it held no earlier outputs, else beside it
-            if not rows:
+            if not rows:  # else the records so far are kept: in --out if it held no earlier outputs, else beside it
                 folder.discard()
                 print(f"trustnav: interrupted after {read} frames; no records, {folder.out} left as it was",
                       file=sys.stderr)  # fmt: skip
                 return 130
-            kept, note = (folder.keep_aside(), f" ({folder.out} keeps the earlier outputs)") if earlier else (
-                folder.commit(), "")  # fmt: skip
+            kept, note = folder.keep(earlier)
             lost = f" ({dropped} live frames dropped)" if is_live else ""
             print(f"trustnav: interrupted after {read} frames{lost}; kept {len(rows)} records in "
                   f"{kept / 'tracks.csv'} and tracks.json{note}", file=sys.stderr)  # fmt: skip
@@ -280,18 +212,6 @@ def _write_run(args: argparse.Namespace, sequences, eye, face, ground, live_sour
             print(f"trustnav: error: none of the {skipped} input frames could be read (see above); "
                   f"nothing to estimate", file=sys.stderr)  # fmt: skip
             return 1
-    tracks = len({(r["sequence"], r["track_id"]) for r in rows})
-    lost = f", {dropped} live frames dropped (slower than the camera)" if is_live else ""
-    print(f"estimate: {read} frames in {len(sequences)} sequence{'s' * (len(sequences) > 1)}, {len(rows)} records, "
-          f"{tracks} tracks, {skipped} frames skipped{lost}; wrote {folder.out}")  # fmt: skip
-    if rejected:
-        gate = sum("landmark model" not in r["reason"] for r in rejected)
-        print(f"  {len(rejected)} detector boxes rejected ({gate} by the geometry gate, {len(rejected) - gate} not "
-              f"confirmed by the landmark model): rejected.json")  # fmt: skip
-    if ground is None:
-        print("  no ground positions: give --camera-height (and --fov, --pitch) to place people on the ground")
-    else:
-        placed = sum(r.get("distance_m") is not None for r in rows)
-        print(f"  {placed} of {len(rows)} records placed on the ground (ahead_m, left_m with sd; camera "
-              f"{ground.height:g} m up, {ground.fov_deg:g} deg, pitch {ground.pitch_deg:g} deg)")  # fmt: skip
+    lines = estimate_summary(read, len(sequences), rows, skipped, dropped, output.rejected, ground, folder.out)
+    print("\n".join(lines))
     return 0

@@ -12,7 +12,18 @@ from numpy.typing import NDArray
 
 from trustnav.viz import style
 
-__all__ = ["SKELETON", "AnnotatedOutput", "annotate", "label_rects", "place_labels", "safe_name", "trust_colour"]
+__all__ = [
+    "SKELETON",
+    "AnnotatedOutput",
+    "EstimateOutput",
+    "annotate",
+    "gui_available",
+    "label_rects",
+    "place_labels",
+    "safe_name",
+    "show",
+    "trust_colour",
+]
 
 # COCO 17 limbs
 SKELETON: tuple[tuple[int, int], ...] = (
@@ -204,3 +215,69 @@ class AnnotatedOutput:
         if self.writer is not None:
             self.writer.release()
             self.writer = None
+
+
+class EstimateOutput:
+    """What `trustnav estimate` writes into ``out`` as the frames come: tracks.csv/json
+    (:class:`trustnav.outputs.TrackTable`, with the ``extra`` fields), the annotated frames
+    (:class:`AnnotatedOutput`; ``images`` False: none) and, with ``rejections``, rejected.json (the
+    detector boxes turned down) on :meth:`close`. :meth:`add` takes one frame of
+    :func:`trustnav.perception.estimate.estimate_sequences`."""
+
+    def __init__(self, out: Path, sequences: list, mp4: bool, extra: tuple[str, ...], images: bool, rejections: bool):
+        from trustnav.outputs import TrackTable
+
+        self.out, self.images, self.rejections = out, images, rejections
+        self.table = TrackTable(out, extra)
+        self.annotated = AnnotatedOutput(out, sequences, mp4)
+        self.rejected: list[dict] = []
+        self.sequence = None
+
+    def add(self, frame, draw: bool = False):  # type: ignore[no-untyped-def]
+        """Record a frame read (its ``result`` without error), its picture ``frame.repeat`` times (live
+        video in real time); returns the annotated picture when drawn (``draw`` or images written)."""
+        res = frame.result
+        if frame.sequence is not self.sequence:
+            self.sequence = frame.sequence
+            self.annotated.start(frame.sequence, frame.fps)
+        self.table.add(res.records)
+        self.rejected.extend(frame.rejected)
+        if not (self.images or draw):
+            return None
+        img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people], frame.labels)
+        for _ in range(frame.repeat if self.images else 0):
+            self.annotated.add(res.name, img)
+        return img
+
+    @property
+    def rows(self) -> list[dict]:
+        return self.table.rows
+
+    def close(self) -> None:
+        """Close the video, write tracks.json and (with ``rejections``) rejected.json."""
+        import json
+
+        self.annotated.close()
+        self.table.close()
+        if self.rejections:
+            (self.out / "rejected.json").write_text(json.dumps(self.rejected, indent=1))
+
+
+def gui_available() -> bool:
+    """Whether this OpenCV can open windows (the headless build trustnav depends on cannot)."""
+    import cv2
+
+    try:
+        cv2.namedWindow("trustnav-probe", cv2.WINDOW_NORMAL)
+        cv2.destroyWindow("trustnav-probe")
+    except cv2.error:
+        return False
+    return True
+
+
+def show(img: NDArray[np.uint8], title: str) -> bool:
+    """Show an annotated frame in a window; True when the user pressed q or Esc."""
+    import cv2
+
+    cv2.imshow(f"trustnav estimate: {title}", img)
+    return (cv2.waitKey(1) & 0xFF) in (ord("q"), 27)

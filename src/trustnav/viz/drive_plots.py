@@ -37,6 +37,7 @@ __all__ = [
     "trust_rgb",
     "trusts_in_force",
     "write_animation",
+    "write_comparison_outputs",
     "write_demo_outputs",
     "write_drive_outputs",
     "write_variant_outputs",
@@ -623,6 +624,31 @@ def write_variant_outputs(
         plot_top_view(results, out / "top_view.png", title=title)
         (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
     return done
+
+
+def write_comparison_outputs(comp: Any, rows: Sequence[dict[str, Any]], out: str | Path, state: str) -> None:
+    """Write a trust comparison (``comp``: a :class:`trustnav.sim.driving.compare.TrustComparison`,
+    ``rows``: its ``comparison_rows``; ``state``: where the controller's pedestrians came from) into
+    ``out``: compare.png (:func:`plot_trust_comparison`), metrics.json and table.csv (a row per run
+    and pedestrian)."""
+    import csv
+
+    out = Path(out)
+    plot_trust_comparison([(v, [(r.mode, r.result) for r in runs]) for v, runs in comp.by_variant()],
+                          out / "compare.png")  # fmt: skip
+    metrics = {"scenario": comp.scenario.name, "sensing": comp.sensing, "seed": comp.seed, "state": state,
+               "table": list(rows), "runs": [dict(variant=r.variant, mode=r.mode, **r.result.metrics())
+                                             for r in comp.runs]}  # fmt: skip
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    with open(out / "table.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["variant", "mode", "trust_given", "gamma", "pedestrian", "attentive", "min_distance",
+                    "final_trust", "time_to_goal", "max_lateral_offset", "margin_violations"])  # fmt: skip
+        for r in rows:
+            for p in r["pedestrians"]:
+                w.writerow([r["variant"], r["mode"], r["trust_given"], r["gamma"], p["name"], p["attentive"],
+                            p["min_distance"], p["final_trust"], r["time_to_goal"], r["max_lateral_offset"],
+                            r["margin_violations"]])  # fmt: skip
 
 
 def write_demo_outputs(demo: Any, out: str | Path, video: bool = True) -> dict[str, Path]:

@@ -7,8 +7,9 @@ imports nothing of trustnav's.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
-__all__ = ["comparison_table", "demo_headline", "drive_summary", "scenario_summary"]
+__all__ = ["comparison_table", "demo_headline", "drive_summary", "estimate_summary", "scenario_summary"]
 
 
 def scenario_summary(m: dict) -> list[str]:
@@ -112,4 +113,26 @@ def demo_headline(runs: dict[str, dict]) -> list[str]:
             ("margin violations", [str(m["margin_violations"]) for _, m in cols])]  # fmt: skip
     for head, cells in rows:
         lines.append((f"  {head:<22}" + "".join(f"{c:<32}" for c in cells)).rstrip())
+    return lines
+
+
+def estimate_summary(read: int, sequences: int, rows: list[dict], skipped: int, dropped: int | None,
+                     rejected: list[dict], ground: Any, out: Path) -> list[str]:  # fmt: skip
+    """`trustnav estimate`'s closing lines: frames, records, tracks, skipped and (``dropped`` not
+    None: live input) dropped frames; the detector boxes rejected; the records placed on the ground
+    (``ground``: the FixedCameraGround, None: no positions)."""
+    tracks = len({(r["sequence"], r["track_id"]) for r in rows})
+    lost = "" if dropped is None else f", {dropped} live frames dropped (slower than the camera)"
+    lines = [f"estimate: {read} frames in {sequences} sequence{'s' * (sequences > 1)}, {len(rows)} records, "
+             f"{tracks} tracks, {skipped} frames skipped{lost}; wrote {out}"]  # fmt: skip
+    if rejected:
+        gate = sum("landmark model" not in r["reason"] for r in rejected)
+        lines.append(f"  {len(rejected)} detector boxes rejected ({gate} by the geometry gate, {len(rejected) - gate} "
+                     f"not confirmed by the landmark model): rejected.json")  # fmt: skip
+    if ground is None:
+        lines.append("  no ground positions: give --camera-height (and --fov, --pitch) to place people on the ground")
+    else:
+        placed = sum(r.get("distance_m") is not None for r in rows)
+        lines.append(f"  {placed} of {len(rows)} records placed on the ground (ahead_m, left_m with sd; camera "
+                     f"{ground.height:g} m up, {ground.fov_deg:g} deg, pitch {ground.pitch_deg:g} deg)")  # fmt: skip
     return lines
