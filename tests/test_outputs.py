@@ -90,6 +90,21 @@ def test_a_folder_of_a_killed_run_is_cleared_and_a_live_ones_kept(tmp_path):
     assert not dead.exists() and live.exists() and other.exists()
 
 
+def test_an_interrupted_run_is_kept_aside_when_out_held_earlier_outputs(tmp_path, earlier):
+    before = _tree(earlier)
+    folder = OutputFolder(earlier, True, OUTPUTS)
+    folder.open()
+    (folder.path / "metrics.json").write_text('{"run": "interrupted"}')
+    kept, note = folder.keep(folder.has_earlier_outputs())
+    assert _tree(earlier) == before and kept.name == "out.interrupted" and str(earlier) in note
+    assert _tree(tmp_path / "out.interrupted") == {"metrics.json": b'{"run": "interrupted"}'}
+    fresh = OutputFolder(tmp_path / "new", False, OUTPUTS)
+    fresh.open()
+    (fresh.path / "metrics.json").write_text("{}")
+    assert fresh.keep(False) == (tmp_path / "new", "") and (tmp_path / "new" / "metrics.json").is_file()
+    assert not _partials(tmp_path)
+
+
 def test_refusals_come_before_anything_is_written(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="is a file"):
