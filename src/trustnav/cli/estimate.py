@@ -95,9 +95,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from trustnav.perception.detector import resolve_model
     from trustnav.perception.estimate import estimate_sequences
-    from trustnav.perception.face import FACE_FIELDS
+    from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact
     from trustnav.perception.frames import frame_count, plan_sequences
+    from trustnav.perception.live import LiveSource, is_live_source
+    from trustnav.perception.localisation import FixedCameraGround
     from trustnav.perception.looking import LookingModel
     from trustnav.perception.optional_backends import make_backend
     from trustnav.progress import Progress
@@ -109,8 +112,6 @@ def run(args: argparse.Namespace) -> int:
     check_bounds(args, "fps", "scan_frames", "sharpen", "camera_height", "fov", "pitch")
     ground = None
     if args.camera_height is not None:
-        from trustnav.perception.localisation import FixedCameraGround
-
         ground = FixedCameraGround(args.camera_height, 70.0 if args.fov is None else args.fov, args.pitch or 0.0)
     elif args.fov is not None or args.pitch is not None:
         raise ValueError("--fov and --pitch place people on the ground only with --camera-height")
@@ -121,8 +122,6 @@ def run(args: argparse.Namespace) -> int:
     if args.realtime:
         args.perception = "realtime"
     elif args.perception is None:  # live input runs in real time unless --perception offline is given
-        from trustnav.perception.live import is_live_source
-
         live = any(is_live_source(str(i)) for i in args.inputs)
         mediapipe = args.backend == "mediapipe" and args.proposer == "detector"
         args.perception = "realtime" if live and mediapipe else "offline"
@@ -132,8 +131,6 @@ def run(args: argparse.Namespace) -> int:
     if legacy and (args.backend != "mediapipe" or args.proposer != "blazepose"):
         raise ValueError("--sharpen, --scan-frames and --no-body-search apply to --proposer blazepose (mediapipe) only")
     if args.backend == "mediapipe" and args.proposer == "detector":
-        from trustnav.perception.detector import resolve_model
-
         args.detector_model = str(resolve_model(args.detector_model))  # a missing file: refused here
     elif args.detector_model is not None:
         raise ValueError("--detector-model applies to --proposer detector (mediapipe backend) only")
@@ -141,15 +138,11 @@ def run(args: argparse.Namespace) -> int:
     eye = LookingModel.from_file(args.looking_weights)
     face = None
     if args.face:  # eye contact from the face too, fused with LOOKING (graphs loaded once, shared)
-        from trustnav.perception.face import FaceConfig, FaceEyeContact
-
         face = FaceEyeContact(FaceConfig(fov_deg=70.0 if args.fov is None else args.fov))
     folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
     earlier = folder.has_earlier_outputs()
     live_source = None
     if sequences[0].kind == "live":  # opened before anything is written: a bad source fails cleanly
-        from trustnav.perception.live import LiveSource
-
         live_source = LiveSource(sequences[0].source, open_timeout=args.open_timeout, read_timeout=args.open_timeout)
     # written beside --out, moved into place at the end (removed if the run fails); the live source closed in any case
     with folder, contextlib.closing(live_source) if live_source is not None else contextlib.nullcontext():
