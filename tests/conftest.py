@@ -144,3 +144,20 @@ def drive_scenario() -> Callable[[str], Any]:
 @pytest.fixture
 def out_dir(tmp_path: Path) -> Path:
     return tmp_path / "out"
+
+
+@pytest.fixture(scope="session")
+def quick_demo() -> Any:
+    """A :class:`~trustnav.sim.driving.demo.DemoRuns` of one-second keypoint drives of Case I (fast;
+    for the demo command's folder handling, not its numbers)."""
+    import dataclasses
+
+    from trustnav.sim.driving import load_drive_scenario, run_drive
+    from trustnav.sim.driving.compare import ConstantTrustWorld
+    from trustnav.sim.driving.demo import DEMO_EQUAL_TRUST, DemoRuns
+    from trustnav.sim.driving.episode import DriveSimulation, drive, prepare_scenario
+
+    sc = dataclasses.replace(load_drive_scenario("case-1"), duration=1.0)
+    equal = drive(ConstantTrustWorld(DriveSimulation(prepare_scenario(sc), seed=0), DEMO_EQUAL_TRUST), "keypoints")
+    aware = run_drive(sc, sensing="keypoints")
+    return DemoRuns(aware, equal, aware, "keypoints")

@@ -37,10 +37,11 @@ ALLOWED: dict[str, set[str]] = {
     "geometry": set(),
     "schema": set(),
     "progress": set(),  # the one progress report (trustnav/progress.py): bars and log lines
+    "outputs": set(),  # output folders written whole or not at all (trustnav/outputs.py)
 }
 #: lower packages that every layer may use (the geometry package below perception and sim; the
 #: validation rules of trustnav.schema)
-BELOW_ALL = {"geometry", "schema", "progress"}
+BELOW_ALL = {"geometry", "schema", "progress", "outputs"}
 ROOT_MODULE = "__init__"  # trustnav/__init__.py: imports nothing of ours (checked below)
 
 
@@ -311,3 +312,32 @@ def test_the_module_cycle_check_sees_a_circle(tmp_path, monkeypatch):
     assert _module_imports(pkg / "b.py") == {"trustnav.control.a"}
     with pytest.raises(AssertionError, match=re.escape("a -> trustnav.control.b -> trustnav.control.a")):
         test_no_import_cycle_between_modules_of_a_package()
+
+
+#: the cli package's own modules, top to bottom: each may import only those below it (the package
+#: root registers the commands; compare and demo reuse drive's options and summary; common is the floor)
+CLI_BELOW: dict[str, set[str]] = {
+    "trustnav.cli": {"compare", "demo", "drive", "estimate", "scenario", "sweep", "common"},
+    "trustnav.cli.__main__": {"trustnav.cli"},
+    "trustnav.cli.compare": {"drive", "common"},
+    "trustnav.cli.demo": {"drive", "common"},
+    "trustnav.cli.drive": {"common"},
+    "trustnav.cli.estimate": {"common"},
+    "trustnav.cli.scenario": {"common"},
+    "trustnav.cli.sweep": {"common"},
+    "trustnav.cli.common": set(),
+}
+
+
+def test_the_cli_package_imports_only_downward():
+    """One module per command, each importing only the shared module below it (and drive's options),
+    never the package root or a sibling command: no circle inside the CLI."""
+    files = sorted((SRC / "cli").glob("*.py"))
+    assert {_module_name(f) if f.stem != "__main__" else "trustnav.cli.__main__" for f in files} == set(CLI_BELOW)
+    bad = []
+    for f in files:
+        name = "trustnav.cli.__main__" if f.stem == "__main__" else _module_name(f)
+        allowed = {m if m.startswith("trustnav") else f"trustnav.cli.{m}" for m in CLI_BELOW[name]}
+        ours = {m for m in _module_imports(f) if m == "trustnav.cli" or m.startswith("trustnav.cli.")}
+        bad += [f"{name} imports {m}" for m in sorted(ours - allowed)]
+    assert not bad, "imports against the cli package's order:\n" + "\n".join(bad)

@@ -553,9 +553,9 @@ def _args(port: int, out, **kw) -> argparse.Namespace:
 
 def run_carla_drive(args: argparse.Namespace) -> int:
     """``trustnav drive ... --world carla`` (the CLI's one drive command, output checks included)."""
-    from trustnav.cli import _drive
+    from trustnav.cli import drive
 
-    return _drive(args)
+    return drive.run(args)
 
 
 def test_command_without_the_carla_package(monkeypatch, capsys, tmp_path):

@@ -504,17 +504,14 @@ def test_scenario_solvers_get_their_own_default_folders_and_reruns_need_overwrit
     assert main(["scenario", "paper-2", "--overwrite"]) == 0
 
 
-def test_demo_replaces_its_own_default_folder_but_not_a_named_one(tmp_path, monkeypatch, capsys):
-    import trustnav.cli as cli
+def test_demo_replaces_its_own_default_folder_but_not_a_named_one(tmp_path, monkeypatch, capsys, quick_demo):
+    from trustnav.sim.driving import demo as story
 
-    def fake_runs(case, sensing, attentive, seed, rate, out, **kw):
-        (out / "metrics.json").write_text("{}")
-        return []
-
-    monkeypatch.setattr(cli, "_drive_runs", fake_runs)
+    monkeypatch.setattr(story, "run_demo", lambda seed, progress=None: quick_demo)
     monkeypatch.chdir(tmp_path)
     assert main(["demo"]) == 0
     assert main(["demo"]) == 0  # run again and again: replaced
+    assert (tmp_path / "out" / "demo" / "metrics.json").is_file()
     named = tmp_path / "mine"
     named.mkdir()
     (named / "x.txt").write_text("x")

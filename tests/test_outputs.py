@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-import trustnav.cli as cli
-from trustnav.cli import OutputFolder, main
+import trustnav.sim.driving.variants as variants
+from trustnav.cli import main
+from trustnav.outputs import OutputFolder
 
 OUTPUTS = ("metrics.json", "frames", "top_view.png")
 
@@ -89,6 +90,21 @@ def test_a_folder_of_a_killed_run_is_cleared_and_a_live_ones_kept(tmp_path):
     assert not dead.exists() and live.exists() and other.exists()
 
 
+def test_an_interrupted_run_is_kept_aside_when_out_held_earlier_outputs(tmp_path, earlier):
+    before = _tree(earlier)
+    folder = OutputFolder(earlier, True, OUTPUTS)
+    folder.open()
+    (folder.path / "metrics.json").write_text('{"run": "interrupted"}')
+    kept, note = folder.keep(folder.has_earlier_outputs())
+    assert _tree(earlier) == before and kept.name == "out.interrupted" and str(earlier) in note
+    assert _tree(tmp_path / "out.interrupted") == {"metrics.json": b'{"run": "interrupted"}'}
+    fresh = OutputFolder(tmp_path / "new", False, OUTPUTS)
+    fresh.open()
+    (fresh.path / "metrics.json").write_text("{}")
+    assert fresh.keep(False) == (tmp_path / "new", "") and (tmp_path / "new" / "metrics.json").is_file()
+    assert not _partials(tmp_path)
+
+
 def test_refusals_come_before_anything_is_written(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="is a file"):
@@ -103,21 +119,24 @@ def test_refusals_come_before_anything_is_written(tmp_path):
 # -- the commands ---------------------------------------------------------------------------------
 
 
-def test_ctrl_c_during_demo_leaves_the_previous_demo_as_it_was(tmp_path, monkeypatch, capsys):
-    def first(case, sensing, attentive, seed, rate, out, **kw):
-        (out / "metrics.json").write_text('{"run": 1}')
-        return []
+def test_ctrl_c_during_demo_leaves_the_previous_demo_as_it_was(tmp_path, monkeypatch, capsys, quick_demo):
+    from trustnav.sim.driving import demo as story
+    from trustnav.viz import drive_plots
 
-    def interrupted(case, sensing, attentive, seed, rate, out, **kw):
+    def first(demo, out, video=True):
+        (out / "metrics.json").write_text('{"run": 1}')
+
+    def interrupted(demo, out, video=True):
         (out / "metrics.json").write_text('{"run": 2}')  # half written when Ctrl-C comes
         raise KeyboardInterrupt
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(cli, "_drive_runs", first)
+    monkeypatch.setattr(story, "run_demo", lambda seed, progress=None: quick_demo)
+    monkeypatch.setattr(drive_plots, "write_demo_outputs", first)
     assert main(["demo"]) == 0
     demo = tmp_path / "out" / "demo"
     before = _tree(demo)
-    monkeypatch.setattr(cli, "_drive_runs", interrupted)
+    monkeypatch.setattr(drive_plots, "write_demo_outputs", interrupted)
     assert main(["demo"]) == 130
     assert "interrupted" in _one_line(capsys.readouterr().err)
     assert _tree(demo) == before == {"metrics.json": b'{"run": 1}'}
@@ -130,7 +149,7 @@ def test_failed_drive_and_scenario_leave_nothing_behind(tmp_path, monkeypatch, c
     def failing(*args, **kwargs):
         raise ValueError("the world fell apart")
 
-    monkeypatch.setattr(cli, "_drive_runs", failing)
+    monkeypatch.setattr(variants, "drive_variants", failing)
     assert main(["drive", "case-1", "--out", str(tmp_path / "d")]) == 2
     assert "the world fell apart" in _one_line(capsys.readouterr().err)
     monkeypatch.setattr(paper, "run_scenario", lambda name, solver="sqp": (_ for _ in ()).throw(KeyboardInterrupt))

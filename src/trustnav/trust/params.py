@@ -12,6 +12,7 @@ __all__ = [
     "PAPER_GAMMA_NUMERICAL",
     "PAPER_TRUST",
     "SECONDS_TRUST",
+    "TRUST_LAWS",
     "GammaParams",
     "TrustParams",
 ]
@@ -141,6 +142,9 @@ MOVING_AVERAGE_TRUST = TrustParams(alpha=0.92, beta=0.08, beta0=1.0)
 #: smartphone use and eye contact follow their cue with 2 s, pose fluctuation with 4 s and the
 #: trust its score with 3 s time constants; the paper's weights and "(0)" formulas.
 SECONDS_TRUST = TrustParams(time_constants=(2.0, 2.0, 4.0, 3.0))
+#: the trust laws by name (`trustnav estimate --trust`)
+TRUST_LAWS: dict[str, TrustParams] = {"seconds": SECONDS_TRUST, "paper": PAPER_TRUST,
+                                      "moving-average": MOVING_AVERAGE_TRUST}  # fmt: skip
 #: Section III numerical simulations: gamma_ini = 0.03, delta = 0.08, lambda = 1.5.
 PAPER_GAMMA_NUMERICAL = GammaParams(gamma_ini=0.03, delta=0.08, lam=1.5)
 #: Section IV CARLA simulations: gamma_ini = 0.08, delta = 0.55, lambda = 2.

@@ -5,13 +5,25 @@ skeletons, phone N/U/Y; in a drive also the pedestrian's name and its colour
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from trustnav.viz import style
 
-__all__ = ["SKELETON", "annotate", "label_rects", "place_labels", "trust_colour"]
+__all__ = [
+    "SKELETON",
+    "AnnotatedOutput",
+    "EstimateOutput",
+    "annotate",
+    "gui_available",
+    "label_rects",
+    "place_labels",
+    "safe_name",
+    "show",
+    "trust_colour",
+]
 
 # COCO 17 limbs
 SKELETON: tuple[tuple[int, int], ...] = (
@@ -137,3 +149,135 @@ def annotate(
         cv2.putText(img, text, (lx1 + chip + 2, ly2 - base - 1), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255),
                     thick, cv2.LINE_AA)  # fmt: skip
     return img
+
+
+def safe_name(label: str) -> str:
+    """A label as a file name: letters, digits, - and _ kept, the rest _."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in label) or "input"
+
+
+class AnnotatedOutput:
+    """Where annotated frames go, one name per input frame: ``frames/<stem>.png`` (a folder's
+    frames under ``frames/<folder>/`` when there are several sequences), ``annotated.mp4`` (or
+    ``annotated_<input>.mp4`` per video sequence when there are several). ``sequences``: the planned
+    inputs (:func:`trustnav.perception.frames.plan_sequences`: ``label``, ``kind``, ``has_video``);
+    ``mp4``: image sequences as video too. :meth:`start` a sequence, :meth:`add` its frames."""
+
+    def __init__(self, out: Path, sequences: list, mp4: bool) -> None:
+        self.out = out
+        self.mp4 = mp4
+        self.n_videos = sum(s.has_video or mp4 for s in sequences)
+        self.nested = len(sequences) > 1
+        self.used: set[Path] = set()
+        self.writer = None
+        self.size: tuple[int, int] | None = None
+        self.seq = None
+
+    def _unique(self, candidates: list[Path]) -> Path:
+        for c in candidates:
+            if c not in self.used:
+                break
+        else:
+            base, k = candidates[-1], 2
+            while (c := base.with_name(f"{base.stem}-{k}{base.suffix}")) in self.used:
+                k += 1
+        self.used.add(c)
+        return c
+
+    def start(self, seq, fps: float) -> None:
+        self.close()
+        self.seq, self.fps = seq, fps
+
+    def add(self, name: str, img) -> None:
+        import cv2
+
+        seq = self.seq
+        if seq.has_video or self.mp4:
+            if self.writer is None:
+                name_mp4 = "annotated.mp4" if self.n_videos == 1 else f"annotated_{safe_name(seq.label)}.mp4"
+                path = self._unique([self.out / name_mp4])
+                self.size = (img.shape[1], img.shape[0])
+                self.writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, self.size)
+            if (img.shape[1], img.shape[0]) != self.size:
+                img = cv2.resize(img, self.size)
+            self.writer.write(img)
+            return
+        folder = self.out / "frames"
+        if self.nested and seq.kind == "folder":
+            folder = folder / safe_name(seq.label)
+        stem = Path(name).stem
+        path = self._unique([folder / f"{stem}.png", folder / f"{safe_name(seq.label)}.png"])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(path), img):
+            raise OSError(f"cannot write {path}")
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+            self.writer = None
+
+
+class EstimateOutput:
+    """What `trustnav estimate` writes into ``out`` as the frames come: tracks.csv/json
+    (:class:`trustnav.outputs.TrackTable`, with the ``extra`` fields), the annotated frames
+    (:class:`AnnotatedOutput`; ``images`` False: none) and, with ``rejections``, rejected.json (the
+    detector boxes turned down) on :meth:`close`. :meth:`add` takes one frame of
+    :func:`trustnav.perception.estimate.estimate_sequences`."""
+
+    def __init__(self, out: Path, sequences: list, mp4: bool, extra: tuple[str, ...], images: bool, rejections: bool):
+        from trustnav.outputs import TrackTable
+
+        self.out, self.images, self.rejections = out, images, rejections
+        self.table = TrackTable(out, extra)
+        self.annotated = AnnotatedOutput(out, sequences, mp4)
+        self.rejected: list[dict] = []
+        self.sequence = None
+
+    def add(self, frame, draw: bool = False):  # type: ignore[no-untyped-def]
+        """Record a frame read (its ``result`` without error), its picture ``frame.repeat`` times (live
+        video in real time); returns the annotated picture when drawn (``draw`` or images written)."""
+        res = frame.result
+        if frame.sequence is not self.sequence:
+            self.sequence = frame.sequence
+            self.annotated.start(frame.sequence, frame.fps)
+        self.table.add(res.records)
+        self.rejected.extend(frame.rejected)
+        if not (self.images or draw):
+            return None
+        img = annotate(res.rgb, res.records, [tp.person.keypoints for tp in res.people], frame.labels)
+        for _ in range(frame.repeat if self.images else 0):
+            self.annotated.add(res.name, img)
+        return img
+
+    @property
+    def rows(self) -> list[dict]:
+        return self.table.rows
+
+    def close(self) -> None:
+        """Close the video, write tracks.json and (with ``rejections``) rejected.json."""
+        import json
+
+        self.annotated.close()
+        self.table.close()
+        if self.rejections:
+            (self.out / "rejected.json").write_text(json.dumps(self.rejected, indent=1))
+
+
+def gui_available() -> bool:
+    """Whether this OpenCV can open windows (the headless build trustnav depends on cannot)."""
+    import cv2
+
+    try:
+        cv2.namedWindow("trustnav-probe", cv2.WINDOW_NORMAL)
+        cv2.destroyWindow("trustnav-probe")
+    except cv2.error:
+        return False
+    return True
+
+
+def show(img: NDArray[np.uint8], title: str) -> bool:
+    """Show an annotated frame in a window; True when the user pressed q or Esc."""
+    import cv2
+
+    cv2.imshow(f"trustnav estimate: {title}", img)
+    return (cv2.waitKey(1) & 0xFF) in (ord("q"), 27)

@@ -12,6 +12,7 @@ share the look of :mod:`trustnav.viz.style` (pedestrian j in ``person_colour(j)`
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,10 @@ __all__ = [
     "trust_rgb",
     "trusts_in_force",
     "write_animation",
+    "write_comparison_outputs",
+    "write_demo_outputs",
     "write_drive_outputs",
+    "write_variant_outputs",
 ]
 
 #: matplotlib colour of a trust value (green > 0.7, orange > 0.4, red otherwise)
@@ -568,17 +572,21 @@ def write_drive_outputs(
     out: str | Path,
     video: bool = True,
     comparisons: Sequence[tuple[str, DriveResult]] = (),
+    offset_only: Sequence[tuple[str, DriveResult]] = (),
 ) -> dict[str, Path]:
     """Write a drive's figures, annotated frames and animation into ``out``; returns their paths
     (metrics.json is the caller's). ``comparisons``: (label, result) runs of the same scenario
-    drawn beside it in the top view and the distance plot (e.g. the equal-trust run)."""
+    drawn beside it in the top view and the distance plot (e.g. the equal-trust run);
+    ``offset_only``: runs drawn in the top view's offset panel only (:func:`plot_top_view`)."""
     import cv2
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     frames = annotated_frames(result)
     paths = {
-        "top_view": plot_top_view(result, out / "top_view.png", comparisons=comparisons, camera_frames=frames),
+        "top_view": plot_top_view(
+            result, out / "top_view.png", comparisons=comparisons, camera_frames=frames, offset_only=offset_only
+        ),
         "trust": plot_trust(result, out / "trust.png"),
         "distance": plot_distance(result, out / "distance.png", comparisons=comparisons),
     }
@@ -591,6 +599,67 @@ def write_drive_outputs(
     paths["frames"] = fdir
     if video:
         paths["video"] = write_animation(result, out / "drive.mp4", frames, fps=result.scenario.control.rate)
+    return paths
+
+
+def write_variant_outputs(
+    runs: Sequence[tuple[str, DriveResult]], out: str | Path, video: bool = True, title: str = ""
+) -> list[tuple[str, dict[str, Any], Path]]:
+    """Write a drive's outputs: per run (tag, result) its figures, frames, animation and
+    metrics.json (several runs: each in ``out/<tag>/``, and the runs compared in ``out``'s top view,
+    distance plot and metrics.json; ``title``: the top view's). Returns (tag, metrics, folder) per
+    run (an empty tag: the scenario's name)."""
+    out = Path(out)
+    done = []
+    for tag, result in runs:
+        where = out / tag if len(runs) > 1 else out
+        metrics = result.metrics()
+        where.mkdir(parents=True, exist_ok=True)
+        write_drive_outputs(result, where, video=video)
+        (where / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        done.append((tag or result.scenario.name, metrics, where))
+    if len(runs) > 1:
+        results = [r for _, r in runs]
+        plot_distance(results, out / "distance.png")
+        plot_top_view(results, out / "top_view.png", title=title)
+        (out / "metrics.json").write_text(json.dumps({tag: m for tag, m, _ in done}, indent=2))
+    return done
+
+
+def write_comparison_outputs(comp: Any, rows: Sequence[dict[str, Any]], out: str | Path, state: str) -> None:
+    """Write a trust comparison (``comp``: a :class:`trustnav.sim.driving.compare.TrustComparison`,
+    ``rows``: its ``comparison_rows``; ``state``: where the controller's pedestrians came from) into
+    ``out``: compare.png (:func:`plot_trust_comparison`), metrics.json and table.csv (a row per run
+    and pedestrian)."""
+    import csv
+
+    out = Path(out)
+    plot_trust_comparison([(v, [(r.mode, r.result) for r in runs]) for v, runs in comp.by_variant()],
+                          out / "compare.png")  # fmt: skip
+    metrics = {"scenario": comp.scenario.name, "sensing": comp.sensing, "seed": comp.seed, "state": state,
+               "table": list(rows), "runs": [dict(variant=r.variant, mode=r.mode, **r.result.metrics())
+                                             for r in comp.runs]}  # fmt: skip
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    with open(out / "table.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["variant", "mode", "trust_given", "gamma", "pedestrian", "attentive", "min_distance",
+                    "final_trust", "time_to_goal", "max_lateral_offset", "margin_violations"])  # fmt: skip
+        for r in rows:
+            for p in r["pedestrians"]:
+                w.writerow([r["variant"], r["mode"], r["trust_given"], r["gamma"], p["name"], p["attentive"],
+                            p["min_distance"], p["final_trust"], r["time_to_goal"], r["max_lateral_offset"],
+                            r["margin_violations"]])  # fmt: skip
+
+
+def write_demo_outputs(demo: Any, out: str | Path, video: bool = True) -> dict[str, Path]:
+    """Write the demo's outputs once (``demo``: a :class:`trustnav.sim.driving.demo.DemoRuns`): the
+    trust-aware drive's figures, frames and animation with the equal-trust run drawn beside it in
+    the top view and the distance plot, keypoint sensing in the offset panel, and metrics.json."""
+    equal = f"equal trust {demo.runs()['equal_trust']['trust_given_to_controller']:g}"
+    paths = write_drive_outputs(demo.trust_aware, out, video=video, comparisons=[(equal, demo.equal_trust)],
+                                offset_only=[("trust-aware, keypoint sensing", demo.keypoints)])  # fmt: skip
+    paths["metrics"] = Path(out) / "metrics.json"
+    paths["metrics"].write_text(json.dumps(demo.metrics(), indent=2))
     return paths
 
 

@@ -11,7 +11,7 @@ A scenario with ``variants`` (Case II) is compared per variant. :func:`compariso
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,6 +19,7 @@ import numpy as np
 
 from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive, make_sensor, prepare_scenario
 from trustnav.sim.driving.sensing import make_render_sensing
+from trustnav.sim.driving.variants import variants_of
 from trustnav.sim.driving.world import DriveScenario
 from trustnav.sim.engine import Observation
 from trustnav.trust.traits import gamma as gamma_of
@@ -95,21 +96,21 @@ def compare_trust(
     control_rate: float | None = None,
     state: str = "perceived",
     progress: Callable[[str, float, float], None] | None = None,
+    modes: Sequence[str] = tuple(TRUST_MODES),
 ) -> TrustComparison:
     """Drive ``scenario`` trust-aware and at constant trust 0 and 1 (per variant: ``attentive``
     True/False one behaviour, None the scenario's variants or as given). Pure: no files written.
-    ``progress(label, t, duration)`` after each control step."""
-    if attentive is not None:
-        variants: list[tuple[str, bool | None]] = [("attentive" if attentive else "distracted", attentive)]
-    elif scenario.variants:
-        variants = [(v, v == "attentive") for v in scenario.variants]
-    else:
-        variants = [("", None)]
+    ``progress(label, t, duration)`` after each control step. ``modes``: the keys of
+    :data:`TRUST_MODES` to drive (default all, in that order)."""
+    unknown = [m for m in modes if m not in TRUST_MODES]
+    if unknown or not modes:
+        raise ValueError(f"modes must be keys of TRUST_MODES {tuple(TRUST_MODES)}, got {tuple(modes)!r}")
     g = scenario.control.gamma
     runs = []
-    for tag, att in variants:
+    for tag, att in variants_of(scenario, attentive):
         sc = prepare_scenario(scenario, att, control_rate)
-        for mode, trust in TRUST_MODES.items():
+        for mode in modes:
+            trust = TRUST_MODES[mode]
             label = f"{tag + ' ' if tag else ''}{mode}"
             renderer = pipeline = None
             if sensing == "render":

@@ -429,6 +429,19 @@ class DriveScenario:
             return self
         return replace(self, pedestrians=tuple(p.with_attention(attentive) for p in self.pedestrians), variants=())
 
+    def with_options(self, duration: float | None = None, **sections: dict[str, Any]) -> DriveScenario:
+        """The scenario with fields of its sections replaced (``camera={"fov_deg": 60.0}``; also
+        ``control``, ``sensing``, ``carla``; a value None leaves the field as it is) and, given,
+        another ``duration``; each section validated as when loaded."""
+        changes: dict[str, Any] = {}
+        for name, values in sections.items():
+            given = {k: v for k, v in values.items() if v is not None}
+            if given:
+                changes[name] = replace(getattr(self, name), **given)
+        if duration is not None:
+            changes["duration"] = float(duration)
+        return replace(self, **changes) if changes else self
+
 
 def _appearance(v: Any, place: Place | None = None) -> body.Appearance:
     """A preset name of body.py (attentive, distracted, walker) or a table of colours."""
