@@ -29,6 +29,7 @@ __all__ = [
     "FrameSequence",
     "expand_inputs",
     "frame_count",
+    "is_live_source",
     "iter_frames",
     "natural_key",
     "plan_sequences",
@@ -150,12 +151,19 @@ def image_runs(images: list[Path]) -> list[list[Path]]:
     return sorted(runs, key=lambda run: order[run[0]])
 
 
+_URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
+
+
+def is_live_source(text: str) -> bool:
+    """A camera index (``0``, ``1``, ...) or a URL (``rtsp://``, ``http://``, ``udp://``, ``file://``...):
+    an input read by :class:`~trustnav.perception.live.LiveSource`, not from files."""
+    return text.isdigit() or bool(_URL.match(text))
+
+
 def plan_sequences(inputs: list[str | Path], *, one_sequence: bool = False) -> list[FrameSequence]:
     """Group the inputs into sequences: each video, each folder of frames (a video inside a
     folder is a sequence of its own) and each loose image; all as one with ``one_sequence``.
     Labels are unique: a repeated name gets its parent folder's name, then a number."""
-    from trustnav.perception.live import is_live_source
-
     live = [str(i) for i in inputs if is_live_source(str(i))]
     if live and (one_sequence or len(live) < len(inputs) or len(live) > 1):
         raise ValueError(f"a live input ({live[0]}) runs alone: give one camera index or stream URL and no other input")

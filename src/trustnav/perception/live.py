@@ -11,7 +11,6 @@ clock since the source opened.
 from __future__ import annotations
 
 import math
-import re
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,16 +19,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.perception.frames import FrameItem
+from trustnav.perception.frames import FrameItem, is_live_source, quiet_stderr
 
 __all__ = ["LiveSource", "frames_due", "is_live_source"]
-
-_URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*://")
-
-
-def is_live_source(text: str) -> bool:
-    """A camera index (``0``, ``1``, ...) or a URL (``rtsp://``, ``http://``, ``udp://``, ``file://``...)."""
-    return text.isdigit() or bool(_URL.match(text))
 
 
 def frames_due(t: float, t_first: float, fps: float, written: int, most: int) -> int:
@@ -43,8 +35,6 @@ def frames_due(t: float, t_first: float, fps: float, written: int, most: int) ->
 
 def _open_cv(source: int | str, timeout_s: float) -> Any:
     import cv2
-
-    from trustnav.perception.frames import quiet_stderr
 
     ms = int(timeout_s * 1000)
     params = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms]
