@@ -44,9 +44,17 @@ def _frame_errors(r) -> list[tuple[float, float, bool]]:
 
 
 def _case_runs(
-    name: str, seeds: range, state: str, sensing: str = "keypoints", caution: bool | None = None, **kw
+    name: str,
+    seeds: range,
+    state: str,
+    sensing: str = "keypoints",
+    caution: bool | None = None,
+    error_correlation: float | None = None,
+    **kw,
 ) -> list[dict]:
     sc = load_drive_scenario(name)
+    if error_correlation is not None:  # the world tracker's error_correlation_s (calibration)
+        sc = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, error_correlation_s=error_correlation))
     if caution is not None:  # the trust-aware speed bound on or off (the presets: off, the paper's)
         sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
     variants = [True, False] if sc.variants else [None]
@@ -123,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
     ap.add_argument("--caution", choices=("on", "off"), help="the trust-aware speed bound (default: the presets', off)")
     ap.add_argument("--json", help="write the summary rows to this file")
+    ap.add_argument("--first-seed", type=int, default=0, help="first seed (default 0; calibrate on others)")
+    ap.add_argument("--error-correlation", type=float, help="[sensing] error_correlation_s (default: the presets')")
     args = ap.parse_args(argv)
     caution = None if args.caution is None else args.caution == "on"
     if not 1 <= args.seeds <= 1000:
@@ -132,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     t0 = time.perf_counter()
     for name, gap in (("case-1", 1.0), ("case-2", 0.5)):
-        runs = _case_runs(name, range(args.seeds), args.state, caution=caution, capture_rate=args.rate)
+        seeds = range(args.first_seed, args.first_seed + args.seeds)
+        runs = _case_runs(name, seeds, args.state, caution=caution, capture_rate=args.rate,
+                          error_correlation=args.error_correlation)  # fmt: skip
         rows.append(summarise(name, runs, gap))
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
@@ -140,8 +152,9 @@ def main(argv: list[str] | None = None) -> int:
         sc = load_drive_scenario("case-1")
         renderer, pipeline = make_render_sensing(sc)
         try:
-            entries = _case_runs("case-1", range(1), args.state, "render", caution=caution, renderer=renderer,
-                                 pipeline=pipeline, capture_rate=args.rate)  # fmt: skip
+            entries = _case_runs("case-1", range(args.first_seed, args.first_seed + 1), args.state, "render",
+                                 caution=caution, renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
+                                 error_correlation=args.error_correlation)  # fmt: skip
         finally:
             renderer.close()
             pipeline.backend.close()

@@ -141,3 +141,23 @@ def test_a_pedestrian_waiting_at_the_kerb_for_a_gap_and_a_yielding_car_do_not_wa
     assert m["reached_goal"] and m["road_departure_max"] == 0.0 and m["margin_violations"] == 0
     assert m["yield_s"] > 1.0
     assert r.pedestrians[-1, 0, 0] < 31.0  # she crossed (from x = 40.5 to the far side)
+
+
+@pytest.mark.slow
+def test_a_relaxed_plan_gives_up_room_to_the_pedestrian_not_the_road():
+    """Step-out at constant trust 1 (no caution, gamma 0.63): from some step on no plan keeps R,
+    and the relaxed plans used to give up the road's rows as well, putting the car on the kerb
+    (0.07 m past the room). The road's rows now stay hard in the relaxation and rank first among
+    fallbacks: the car brakes on the road instead."""
+    from trustnav.control import SolveStatus
+    from trustnav.sim.driving import DriveSimulation, drive, load_drive_scenario
+    from trustnav.sim.driving.compare import ConstantTrustWorld
+    from trustnav.sim.driving.episode import drive_metrics, make_sensor, prepare_scenario
+
+    sc = prepare_scenario(load_drive_scenario(ROOT / "examples/scenarios/step-out.toml"), None, None)
+    world = ConstantTrustWorld(DriveSimulation(sc, seed=0, sensor=make_sensor("keypoints", None, None)), 1.0)
+    r = drive(world, "keypoints")
+    m = drive_metrics(r)
+    assert any(s is SolveStatus.RELAXED for s in r.statuses)  # the situation the test is about
+    assert m["road_departure_max"] == 0.0
+    assert m["pedestrians"][0]["min_distance"] > 2.0  # it braked: no pass through R at speed

@@ -72,7 +72,8 @@ class MpcController:
 
     Every step returns a checked plan: when the solver does not end OPTIMAL, its plan, the
     shifted previous plan and braking to rest are checked against the exact CBF rows and the
-    best by (first-row violation, total violation over the horizon, cost) is applied (:func:`rank_key`).
+    best by (user barriers' violation, first-row violation, total violation over the horizon, cost) is
+    applied (:func:`rank_key`).
 
     The problem is assembled from ``model`` (any :class:`~trustnav.control.models.Dynamics`),
     ``cost`` (any :class:`~trustnav.control.costs.Cost`), the pedestrians given at every step (the

@@ -139,6 +139,7 @@ class PlanCheck(NamedTuple):
     worst: float  # worst violation over the horizon
     total: float  # sum of violations over the horizon
     cost: float
+    barrier: float = 0.0  # worst violation of the user barriers' rows (the road's edges) alone
 
 
 def _sum(arr: NDArray[np.float64]) -> float:
@@ -714,7 +715,10 @@ class MpcProblem:
     def check_built(self, cost: float) -> PlanCheck:
         """:class:`PlanCheck` of the point of the last :meth:`build` (which returned ``cost``)."""
         first, worst, total = kern.row_violations(self.g, self.n_decided, self.n_obs)  # one compiled pass
-        return PlanCheck(first, worst, total, cost)
+        barrier = 0.0
+        if self.n_user and worst > 0.0:
+            barrier = max(0.0, -float(self.g.reshape(self.n_h, self.n_obs)[:, self.n_p :].min()))
+        return PlanCheck(first, worst, total, cost, barrier)
 
     def decided_violation(self) -> float:
         """Worst violation of the rows no input can change (0 for the single integrator), at the

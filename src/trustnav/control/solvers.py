@@ -65,19 +65,21 @@ class SolveResult:
     deadline_hit: bool = False
 
 
-def rank_key(check: PlanCheck) -> tuple[float, float, float]:
-    """Order of plans: first-row violation, then total violation over the horizon, then cost
-    (violations within FEAS_TOL count as none)."""
+def rank_key(check: PlanCheck) -> tuple[float, float, float, float]:
+    """Order of plans: violation of the user barriers' rows (the road's edges: a plan that leaves
+    the road ranks after every plan that keeps it), then first-row violation, then total violation
+    over the horizon, then cost (violations within FEAS_TOL count as none)."""
+    bv = check.barrier if check.barrier > FEAS_TOL else 0.0
     fv = check.first_row if check.first_row > FEAS_TOL else 0.0
     tv = check.total if check.worst > FEAS_TOL else 0.0
-    return fv, tv, check.cost if math.isfinite(check.cost) else math.inf
+    return bv, fv, tv, check.cost if math.isfinite(check.cost) else math.inf
 
 
 class _Best:
     """The best plan seen so far by :func:`rank_key` (every point the solver evaluates exactly)."""
 
     def __init__(self) -> None:
-        self.key: tuple[float, float, float] | None = None
+        self.key: tuple[float, float, float, float] | None = None
         self.u: NDArray[np.float64] | None = None
         self.check = PlanCheck(math.inf, math.inf, math.inf, math.inf)
 
@@ -202,9 +204,13 @@ class SqpSolver:
         self._lam: NDArray[np.float64] = np.zeros(0)  # the multipliers of the last QP solved
 
     # ---- QPs ----
-    def _slack_columns(self, p: MpcProblem, row_pedestrians: int | None = None) -> tuple[NDArray[np.int64], int]:
+    def _slack_columns(
+        self, p: MpcProblem, row_pedestrians: int | None = None, hard_barriers: bool = False
+    ) -> tuple[NDArray[np.int64], int]:
         """Column (after the n inputs) of the slack of each CBF row (pedestrians and user barriers
-        alike: one obstacle per barrier function), and the slack count.
+        alike: one obstacle per barrier function; -1: no slack, the row stays hard), and the slack
+        count. ``hard_barriers``: the user barriers' rows (the road's edges) get no slack, so a
+        relaxed plan gives up room to the pedestrians only and brakes rather than leave the road.
 
         DAQP's work grows with (rows) x (variables)^2, so the slacks are budgeted: one per row for
         the most binding pedestrians (at most ``row_slack_pedestrians``, or ``row_pedestrians``
@@ -222,6 +228,8 @@ class SqpSolver:
         per_row = n_row * p.n_h
         cols = np.where(s < n_row, s * p.n_h + k, per_row + np.minimum(s - n_row, n_own))
         n_shared = 1 if p.n_obs > n_row + n_own else 0
+        if hard_barriers and p.n_user:
+            cols[np.tile(np.arange(p.n_obs), p.n_h) >= p.n_p] = -1
         return cols, per_row + n_own + n_shared
 
     def _qp(
@@ -249,7 +257,8 @@ class SqpSolver:
             f = np.concatenate([np.zeros(n) if phase1 else p.f, np.full(ns, self.slack_penalty)])
             a = np.zeros((m, n + ns))
             a[:, :n] = p.A
-            a[np.arange(mc), n + cols] = 1.0
+            soft = cols >= 0
+            a[np.arange(mc)[soft], n + cols[soft]] = 1.0
             bl = np.concatenate([p.bl[:n], np.zeros(ns), p.bl[n:]])
             bu = np.concatenate([p.bu[:n], np.full(ns, 1e20), p.bu[n:]])
         if a.shape[0] == 0:  # no rows: DAQP gets one row that always holds
@@ -632,8 +641,13 @@ class SqpSolver:
                 s.u = s.best.u.copy()
             s.cost = p.build(s.u)
             p.flatten()
-            s.slack = self._slack_columns(p)
+            # the road's rows stay hard (the car brakes rather than leave the road); only when
+            # no step keeps them do they get slacks as well
+            s.slack = self._slack_columns(p, hard_barriers=True)
             s.step, flag = self._qp(p, s.slack, s.until)
+            if s.step is None and flag != DEADLINE and p.n_user:
+                s.slack = self._slack_columns(p)
+                s.step, flag = self._qp(p, s.slack, s.until)
         return flag
 
     def _take_step(self, s: SqpSolver._State) -> float:

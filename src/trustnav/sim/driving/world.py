@@ -226,6 +226,15 @@ class ControlSpec:
 MAX_PERCEPTION_LATENCY = 5.0
 
 
+# how long a person's placement errors stay alike (s; docs/perceived.md, "Calibration"): rendered
+# frames through a detector repeat its bias for one pose and viewpoint (Case I at 10 frames/s,
+# independent frames: the truth in the 90 % region in 26 % of the distracted pedestrian's frames);
+# keypoint sensing draws its joints' errors anew in each frame (measured on seeds 100-103: the
+# errors' correlation 0.12 one frame apart at 10 frames/s, a track's mean error 3-5 % of their energy)
+RENDER_ERROR_CORRELATION_S = 1.0
+KEYPOINT_ERROR_CORRELATION_S = 0.1
+
+
 @dataclass(frozen=True)
 class SensingSpec:
     """How the car senses pedestrians.
@@ -249,7 +258,9 @@ class SensingSpec:
     detector's common vertical shift, by default),
     ``accel_psd`` (m^2/s^3, the tracker's walking model), ``error_correlation_s`` (s over which a
     person's placement errors stay alike: frames closer together count as one placement, see
-    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`), ``track_keep`` (s a track lives unseen
+    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 1 s for
+    rendered frames, 0.1 s for keypoint sensing, whose errors are drawn anew in each frame),
+    ``track_keep`` (s a track lives unseen
     where the camera should see it; out of view beside the
     car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
     ``perception_latency`` (s): how long after its capture a frame's people reach the car's
@@ -275,7 +286,9 @@ class SensingSpec:
     stature_sigma: float = 0.09
     pitch_sigma_deg: float = 0.03
     accel_psd: float = 0.25
-    error_correlation_s: float = 1.0
+    error_correlation_s: Annotated[
+        float | None, Maybe(Number(0, 60, unit=" s"), "by sensing: 1 s for rendered frames, 0.1 s for keypoints")
+    ] = None
     track_keep: float = 2.5
     perception_latency: Annotated[float, Number(0, MAX_PERCEPTION_LATENCY, unit=" s")] = 0.0
 
@@ -294,11 +307,14 @@ class SensingSpec:
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
 
-    def tracker(self) -> WorldTrackerConfig:
-        """The world tracker's configuration."""
-        return WorldTrackerConfig(
-            accel_psd=self.accel_psd, keep_seconds=self.track_keep, error_correlation_s=self.error_correlation_s
-        )
+    def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
+        """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
+        ``error_correlation_s`` is :data:`KEYPOINT_ERROR_CORRELATION_S`; rendered frames:
+        :data:`RENDER_ERROR_CORRELATION_S`)."""
+        tau = self.error_correlation_s
+        if tau is None:
+            tau = KEYPOINT_ERROR_CORRELATION_S if keypoints else RENDER_ERROR_CORRELATION_S
+        return WorldTrackerConfig(accel_psd=self.accel_psd, keep_seconds=self.track_keep, error_correlation_s=tau)
 
 
 @dataclass(frozen=True)
