@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 import urllib.error
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -327,7 +328,7 @@ def test_no_weights_and_no_network_says_how_to_give_them(tmp_path, monkeypatch, 
         raise urllib.error.URLError("[Errno -3] Temporary failure in name resolution")
 
     monkeypatch.setattr(looking, "_candidates", lambda: ([tmp_path / "none.p"], tmp_path / "cache" / "w.p"))
-    monkeypatch.setattr(looking.urllib.request, "urlopen", offline)
+    monkeypatch.setattr(urllib.request, "urlopen", offline)
     with pytest.raises(FileNotFoundError, match=r"--looking-weights.*TRUSTNAV_LOOKING_WEIGHTS"):
         looking.resolve_weights()
     assert not list((tmp_path / "cache").glob("*"))  # no partial file left

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ def _no_download(*args, **kwargs):
 
 
 def test_a_missing_model_path_is_one_line_naming_it_and_never_downloaded(tmp_path, monkeypatch):
-    monkeypatch.setattr(det.urllib.request, "urlopen", _no_download)
+    monkeypatch.setattr(urllib.request, "urlopen", _no_download)
     with pytest.raises(FileNotFoundError) as err:
         det.resolve_model(tmp_path / "nope.onnx")
     msg = str(err.value)
@@ -35,7 +36,7 @@ def test_a_missing_model_path_is_one_line_naming_it_and_never_downloaded(tmp_pat
 
 
 def test_a_corrupt_model_file_is_one_line_naming_it(tmp_path, monkeypatch):
-    monkeypatch.setattr(det.urllib.request, "urlopen", _no_download)
+    monkeypatch.setattr(urllib.request, "urlopen", _no_download)
     bad = tmp_path / "yolox_nano.onnx"
     bad.write_bytes(b"not an onnx model")
     with pytest.raises(ValueError) as err:
@@ -56,14 +57,14 @@ def test_without_a_local_file_the_model_is_downloaded_once_and_checked(tmp_path,
     payload = b"model bytes"
     cache = tmp_path / "cache" / "trustnav" / det.MODEL_NAME
     monkeypatch.setattr(det, "_candidates", lambda: ([tmp_path / "none.onnx", cache], cache))
-    monkeypatch.setattr(det.urllib.request, "urlopen", lambda url, timeout: _Response(payload))
+    monkeypatch.setattr(urllib.request, "urlopen", lambda url, timeout: _Response(payload))
     with pytest.raises(FileNotFoundError, match="sha256"):  # not the release's file: nothing kept
         det.resolve_model()
     assert not cache.exists() and not cache.with_suffix(".part").exists()
     monkeypatch.setattr(det, "YOLOX_SHA256", hashlib.sha256(payload).hexdigest())
     assert det.resolve_model() == cache and cache.read_bytes() == payload
     assert "downloading" in capsys.readouterr().err
-    monkeypatch.setattr(det.urllib.request, "urlopen", _no_download)
+    monkeypatch.setattr(urllib.request, "urlopen", _no_download)
     assert det.resolve_model() == cache  # the cached copy, no second download
     cache.unlink()
     with pytest.raises(FileNotFoundError, match="allow the download"):

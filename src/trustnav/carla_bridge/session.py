@@ -21,14 +21,13 @@ import queue
 import signal
 import socket
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
 
 from trustnav.carla_bridge.control import PedalMap
 from trustnav.carla_bridge.frames import MapFrame
+from trustnav.outputs import no_interrupts
 from trustnav.sim.driving.world import DriveScenario
 
 __all__ = [
@@ -182,7 +181,7 @@ class CarlaSession:
     def close(self) -> None:
         """Stop the camera, restore the settings, destroy the spawned actors; never raises (problems
         are kept in ``cleanup_errors``)."""
-        with _signals_ignored():
+        with no_interrupts():  # cleanup is never cut short
             if self.camera is not None:
                 self._try("stop the camera", self.camera.stop)
             if self._settings is not None and self.world is not None:
@@ -305,20 +304,6 @@ class CarlaSession:
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
-
-
-@contextmanager
-def _signals_ignored() -> Iterator[None]:
-    """Ignore SIGINT and SIGTERM for the duration (cleanup must not be cut short); main thread only."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
 
 
 def _probe(host: str, port: int, timeout: float) -> None:

@@ -17,17 +17,16 @@ file and how to pass another.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import sys
-import urllib.request
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.perception import model_files
 from trustnav.perception.types import check_frame
 
 __all__ = [
@@ -53,37 +52,9 @@ PAD_VALUE = 114
 
 def _candidates() -> tuple[list[Path], Path]:
     """Where the model is looked for, in order (checkout, environment, cache), and the cache."""
-    candidates: list[Path] = []
-    here = Path(__file__).resolve()
-    for root in (Path.cwd(), *here.parents):
-        candidates.append(root.parent / "shared" / "models" / "yolox" / MODEL_NAME)
-    if os.environ.get(MODEL_ENV):
-        candidates.append(Path(os.environ[MODEL_ENV]))
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "trustnav" / MODEL_NAME
-    candidates.append(cache)
-    return list(dict.fromkeys(candidates)), cache
-
-
-def _download(url: str, dest: Path, sha256: str, timeout: float = 60.0) -> None:
-    """Fetch ``url`` into ``dest`` through a .part file, checking its sha256 (a failure leaves nothing)."""
-    tmp = dest.with_suffix(".part")
-    try:
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        digest = hashlib.sha256()
-        with urllib.request.urlopen(url, timeout=timeout) as resp, open(tmp, "wb") as fh:
-            while chunk := resp.read(1 << 16):
-                digest.update(chunk)
-                fh.write(chunk)
-        if digest.hexdigest() != sha256:
-            raise ValueError(f"sha256 {digest.hexdigest()[:12]}... is not the release's {sha256[:12]}...")
-        tmp.replace(dest)
-    except (OSError, ValueError) as exc:  # URLError, HTTPError and timeouts are OSErrors
-        tmp.unlink(missing_ok=True)
-        reason = getattr(exc, "reason", None) or exc
-        raise FileNotFoundError(
-            f"person detector {MODEL_NAME} not found locally and the download from {url} failed "
-            f"({reason}); {MODEL_HINT}"
-        ) from None
+    cache = model_files.cache_path(MODEL_NAME)
+    env = [Path(os.environ[MODEL_ENV])] if os.environ.get(MODEL_ENV) else []
+    return list(dict.fromkeys([*model_files.checkout_paths("yolox", MODEL_NAME), *env, cache])), cache
 
 
 def resolve_model(path: str | Path | None = None, *, download: bool = True) -> Path:
@@ -109,7 +80,7 @@ def resolve_model(path: str | Path | None = None, *, download: bool = True) -> P
             f"or allow the download from {YOLOX_URL}"
         )
     print(f"trustnav: downloading the person detector YOLOX-Nano (3.6 MB) once to {cache}", file=sys.stderr)
-    _download(YOLOX_URL, cache, YOLOX_SHA256)
+    model_files.download(YOLOX_URL, cache, what=f"person detector {MODEL_NAME}", hint=MODEL_HINT, sha256=YOLOX_SHA256)
     return cache
 
 

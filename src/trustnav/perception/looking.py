@@ -11,13 +11,14 @@ from __future__ import annotations
 import os
 import pickle
 import sys
-import urllib.request
 import zipfile
 from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from trustnav.perception import model_files
 
 __all__ = ["LOOKING_URL", "LookingModel", "load_torch_state_dict", "normalise_keypoints", "resolve_weights"]
 
@@ -88,33 +89,9 @@ def load_torch_state_dict(path: str | Path) -> dict[str, NDArray]:
 
 def _candidates() -> tuple[list[Path], Path]:
     """Where the weights are looked for, in order, and the cache they are downloaded to."""
-    candidates = []
-    if os.environ.get("TRUSTNAV_LOOKING_WEIGHTS"):
-        candidates.append(Path(os.environ["TRUSTNAV_LOOKING_WEIGHTS"]))
-    here = Path(__file__).resolve()
-    for root in (Path.cwd(), *here.parents):
-        candidates.append(root.parent / "shared" / "models" / "looking" / WEIGHTS_NAME)
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "trustnav" / WEIGHTS_NAME
-    candidates.append(cache)
-    return candidates, cache
-
-
-def _download(url: str, dest: Path, timeout: float = 30.0) -> None:
-    """Fetch ``url`` into ``dest`` (through a .part file, so a failed download leaves nothing)."""
-    tmp = dest.with_suffix(".part")
-    try:
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        with urllib.request.urlopen(url, timeout=timeout) as resp, open(tmp, "wb") as fh:
-            while chunk := resp.read(1 << 16):
-                fh.write(chunk)
-        tmp.replace(dest)
-    except (OSError, ValueError) as exc:  # URLError, HTTPError and timeouts are OSErrors
-        tmp.unlink(missing_ok=True)
-        reason = getattr(exc, "reason", None) or exc
-        raise FileNotFoundError(
-            f"LOOKING eye-contact weights not found locally and the download from {url} failed ({reason}); "
-            f"{WEIGHTS_HINT}"
-        ) from None
+    env = [Path(os.environ["TRUSTNAV_LOOKING_WEIGHTS"])] if os.environ.get("TRUSTNAV_LOOKING_WEIGHTS") else []
+    cache = model_files.cache_path(WEIGHTS_NAME)
+    return [*env, *model_files.checkout_paths("looking", WEIGHTS_NAME), cache], cache
 
 
 def resolve_weights(path: str | Path | None = None, *, download: bool = True) -> Path:
@@ -138,7 +115,7 @@ def resolve_weights(path: str | Path | None = None, *, download: bool = True) ->
             f"{WEIGHTS_HINT}, or allow the download from {LOOKING_URL}"
         )
     print(f"trustnav: downloading the LOOKING eye-contact weights (1.7 MB) once to {cache}", file=sys.stderr)
-    _download(LOOKING_URL, cache)
+    model_files.download(LOOKING_URL, cache, what="LOOKING eye-contact weights", hint=WEIGHTS_HINT, timeout=30.0)
     return cache
 
 
