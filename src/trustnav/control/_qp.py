@@ -371,6 +371,25 @@ def _accept(u, trial, xsol, step):
 
 
 @njit(cache=True)
+def _bicycle_rows(
+    x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt, n_sub, timing,
+    stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, ox, oy, road, n_road, n_decided,
+):  # fmt: skip
+    """The bicycle's QP data at ``u`` (:func:`~trustnav.control._kernels.bicycle_qp`), the road's rows
+    (``n_road`` > 0) and the decided rows' lower bounds opened; returns the cost at ``u``."""
+    n = 2 * u.shape[0]
+    cost = bicycle_qp(
+        x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
+        n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+    )  # fmt: skip
+    if n_road:
+        road_fill(xs, sens, ox, oy, road, n_road, stride, peds.shape[0], a_mat, bl, bu, g, n)
+    for r in range(n_decided):
+        bl[n + r] = -INF
+    return cost
+
+
+@njit(cache=True)
 def bicycle_steps(
     max_it, tol, mu, u, seen, trial, x0, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds,
     vels, omg, r2, dt, n_sub, timing, stride, m_cbf, n_decided, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
@@ -385,20 +404,15 @@ def bicycle_steps(
     ego-centred states about ``ox, oy``) after the pedestrians' at every step of the horizon."""
     n_h = u.shape[0]
     n = 2 * n_h
-    n_p = peds.shape[0]
     cost = 0.0
     flag = 0
     fresh = False
     for it in range(1, max_it + 1):
         if not fresh:
-            cost = bicycle_qp(
-                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
-                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+            cost = _bicycle_rows(
+                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt, n_sub,
+                timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, ox, oy, road, n_road, n_decided,
             )  # fmt: skip
-            if n_road:
-                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
-            for r in range(n_decided):
-                bl[n + r] = -INF
         _warm_start(sense, lam)
         _quadprog(result_addr, problem_addr, settings_addr)
         flag = result_words[8]
@@ -415,28 +429,21 @@ def bicycle_steps(
         accepted = False
         for _ in range(8):
             _trial_point(u, xsol, alpha, ulo, uhi, trial)
-            c1 = bicycle_qp(
+            c1 = _bicycle_rows(
                 x0, trial, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
-                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, ox, oy, road, n_road,
+                n_decided,
             )  # fmt: skip
-            if n_road:
-                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
-            for r in range(n_decided):
-                bl[n + r] = -INF
             trial_merit = c1 + mu * merit_violation(bl, bu, n, n_decided)
             if trial_merit <= merit0 + ARMIJO * alpha * slope + 1e-12 * (1.0 + abs(merit0)):
                 accepted = True
                 break
             alpha *= 0.5
         if not accepted:  # no decrease of the merit along the QP's step: no progress is possible here
-            cost = bicycle_qp(
-                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt,
-                n_sub, timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g,
+            cost = _bicycle_rows(
+                x0, u, u_prev, ref_pts, ref_yaw, ref_v, weights, wheelbase, vmin, vmax, peds, vels, omg, r2, dt, n_sub,
+                timing, stride, m_cbf, ulo, uhi, xs, sens, h_mat, f, a_mat, bl, bu, g, ox, oy, road, n_road, n_decided,
             )  # fmt: skip
-            if n_road:
-                road_fill(xs, sens, ox, oy, road, n_road, stride, n_p, a_mat, bl, bu, g, n)
-            for r in range(n_decided):
-                bl[n + r] = -INF
             return it, 1, cost, flag
         step = _accept(u, trial, xsol, 0.0)
         cost, fresh = c1, True  # the buffers hold the data at the accepted trial
