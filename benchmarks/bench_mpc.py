@@ -131,6 +131,33 @@ def _stdout_silenced():
             os.close(saved)
 
 
+def _casadi_bicycle(ca, model, cost, x0, u, ref, n_h: int, dt: float):  # type: ignore[no-untyped-def]
+    """The bicycle's predicted states (Euler substeps, as the model integrates) and its lane-tracking
+    cost in CasADi, from ``ref`` = points (2 x (n_h + 1)), speeds (n_h + 1), lane yaw, u_prev (2)."""
+    pts = ca.reshape(ref[: 2 * (n_h + 1)], 2, n_h + 1)
+    vref = ref[2 * (n_h + 1) : 3 * (n_h + 1)]
+    yaw_ref = ref[3 * (n_h + 1)]
+    u_prev = ref[3 * (n_h + 1) + 1 :]
+    n_sub = max(1, math.ceil(dt / model.integration_step - 1e-9)) if model.integration_step else 1
+    h = dt / n_sub
+    w = cost.weights
+    xs, x, obj = [x0], x0, 0
+    nrm = ca.vertcat(-ca.sin(yaw_ref), ca.cos(yaw_ref))
+    for k in range(n_h):
+        st, ac = u[2 * k], u[2 * k + 1]
+        for _ in range(n_sub):
+            x = ca.vertcat(x[0] + x[3] * ca.cos(x[2]) * h, x[1] + x[3] * ca.sin(x[2]) * h,
+                           x[2] + x[3] * ca.tan(st) / model.wheelbase * h, x[3] + ac * h)  # fmt: skip
+        xs.append(x)
+        d_head = x[2] - yaw_ref
+        prev = u_prev if k == 0 else u[2 * k - 2 : 2 * k]
+        obj += (w.cte * ca.dot(nrm, x[:2] - pts[:, k + 1]) ** 2
+                + w.heading * ca.atan2(ca.sin(d_head), ca.cos(d_head)) ** 2
+                + w.speed * (x[3] - vref[k + 1]) ** 2 + w.steer * st**2 + w.accel * ac**2
+                + w.steer_rate * (st - prev[0]) ** 2 + w.accel_rate * (ac - prev[1]) ** 2)  # fmt: skip
+    return xs, obj
+
+
 class CasadiMpc:
     """`proposed` in CasADi, single shooting in the inputs U, from the paper's equations: `h_quad`,
     `cbf_imp` with constant-velocity pedestrians (`ped_predict`), gamma_j by `weight`; the single
@@ -157,28 +184,7 @@ class CasadiMpc:
         else:
             ref = ca.SX.sym("ref", 3 * (n_h + 1) + 3)  # points, speeds, lane yaw, u_prev(2)
             params = [x0, peds, vels, decay, ref]
-            pts = ca.reshape(ref[: 2 * (n_h + 1)], 2, n_h + 1)
-            vref = ref[2 * (n_h + 1) : 3 * (n_h + 1)]
-            yaw_ref = ref[3 * (n_h + 1)]
-            u_prev = ref[3 * (n_h + 1) + 1 :]
-            n_sub = max(1, math.ceil(dt / model.integration_step - 1e-9)) if model.integration_step else 1
-            h = dt / n_sub
-            w = cost.weights
-            xs, x = [x0], x0
-            obj = 0
-            nrm = ca.vertcat(-ca.sin(yaw_ref), ca.cos(yaw_ref))
-            for k in range(n_h):
-                st, ac = u[2 * k], u[2 * k + 1]
-                for _ in range(n_sub):
-                    x = ca.vertcat(x[0] + x[3] * ca.cos(x[2]) * h, x[1] + x[3] * ca.sin(x[2]) * h,
-                                   x[2] + x[3] * ca.tan(st) / model.wheelbase * h, x[3] + ac * h)  # fmt: skip
-                xs.append(x)
-                d_head = x[2] - yaw_ref
-                prev = u_prev if k == 0 else u[2 * k - 2 : 2 * k]
-                obj += (w.cte * ca.dot(nrm, x[:2] - pts[:, k + 1]) ** 2
-                        + w.heading * ca.atan2(ca.sin(d_head), ca.cos(d_head)) ** 2
-                        + w.speed * (x[3] - vref[k + 1]) ** 2 + w.steer * st**2 + w.accel * ac**2
-                        + w.steer_rate * (st - prev[0]) ** 2 + w.accel_rate * (ac - prev[1]) ** 2)  # fmt: skip
+            xs, obj = _casadi_bicycle(ca, model, cost, x0, u, ref, n_h, dt)
             extra_g = [xs[k + 1][3] for k in range(n_h)]  # speed rows, widened to what v(0) can reach
             t = np.arange(1, n_h + 1) * dt
             lo_u, hi_u = model.input_bounds()
@@ -267,27 +273,7 @@ class CasadiDrive:
         r2 = ca.SX.sym("r2", n_p)
         ref = ca.SX.sym("ref", 3 * (n_h + 1) + 3)
         rd = ca.SX.sym("road", 8)  # start (ego-centred), normal, room left / right, front, 1 - gamma
-        pts = ca.reshape(ref[: 2 * (n_h + 1)], 2, n_h + 1)
-        vref = ref[2 * (n_h + 1) : 3 * (n_h + 1)]
-        yaw_ref = ref[3 * (n_h + 1)]
-        u_prev = ref[3 * (n_h + 1) + 1 :]
-        n_sub = max(1, math.ceil(dt / model.integration_step - 1e-9)) if model.integration_step else 1
-        h = dt / n_sub
-        w = cost.weights
-        xs, x, obj = [x0], x0, 0
-        nrm = ca.vertcat(-ca.sin(yaw_ref), ca.cos(yaw_ref))
-        for k in range(n_h):
-            st, ac = u[2 * k], u[2 * k + 1]
-            for _ in range(n_sub):
-                x = ca.vertcat(x[0] + x[3] * ca.cos(x[2]) * h, x[1] + x[3] * ca.sin(x[2]) * h,
-                               x[2] + x[3] * ca.tan(st) / model.wheelbase * h, x[3] + ac * h)  # fmt: skip
-            xs.append(x)
-            d_head = x[2] - yaw_ref
-            prev = u_prev if k == 0 else u[2 * k - 2 : 2 * k]
-            obj += (w.cte * ca.dot(nrm, x[:2] - pts[:, k + 1]) ** 2
-                    + w.heading * ca.atan2(ca.sin(d_head), ca.cos(d_head)) ** 2
-                    + w.speed * (x[3] - vref[k + 1]) ** 2 + w.steer * st**2 + w.accel * ac**2
-                    + w.steer_rate * (st - prev[0]) ** 2 + w.accel_rate * (ac - prev[1]) ** 2)  # fmt: skip
+        xs, obj = _casadi_bicycle(ca, model, cost, x0, u, ref, n_h, dt)
 
         def edges(s):  # the road's functions at state s
             d = ca.dot(s[:2] - rd[0:2], rd[2:4])
