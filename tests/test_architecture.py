@@ -14,6 +14,7 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -61,13 +62,25 @@ def _module_name(path: Path) -> str:
 
 def _imports(path: Path) -> list[tuple[str, int]]:
     """(imported trustnav module, line) for every import in the file, relative ones resolved."""
-    module = _module_name(path)
-    is_pkg = path.name == "__init__.py"
-    tree = ast.parse(path.read_text(), filename=str(path))
     out = []
-    for node in ast.walk(tree):
+    for node, target in _import_nodes(path):
         if isinstance(node, ast.Import):
             out += [(a.name, node.lineno) for a in node.names if a.name.split(".")[0] == "trustnav"]
+        elif target == "trustnav":  # from trustnav import sim
+            out += [(f"trustnav.{a.name}", node.lineno) for a in node.names]
+        else:
+            out.append((target, node.lineno))
+    return out
+
+
+def _import_nodes(path: Path) -> Iterator[tuple[ast.Import | ast.ImportFrom, str]]:
+    """Every import statement of the file with the trustnav module a ``from`` import names (relative
+    ones resolved; ``""`` for a plain ``import``); ``from`` imports of other packages left out."""
+    module = _module_name(path)
+    is_pkg = path.name == "__init__.py"
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            yield node, ""
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = module.split(".")
@@ -76,13 +89,8 @@ def _imports(path: Path) -> list[tuple[str, int]]:
                 target = ".".join([*base, node.module] if node.module else base)
             else:
                 target = node.module or ""
-            if target.split(".")[0] != "trustnav":
-                continue
-            if target == "trustnav":  # from trustnav import sim
-                out += [(f"trustnav.{a.name}", node.lineno) for a in node.names]
-            else:
-                out.append((target, node.lineno))
-    return out
+            if target.split(".")[0] == "trustnav":
+                yield node, target
 
 
 def _edges() -> list[tuple[str, str, str, int]]:
@@ -250,22 +258,11 @@ def test_importing_any_module_changes_no_global_state():
 def _module_imports(path: Path) -> set[str]:
     """The trustnav modules a file imports, ``from package import module`` resolved to the module
     (a name that is no module of the package counts as the package's ``__init__``)."""
-    module = _module_name(path)
-    is_pkg = path.name == "__init__.py"
     out = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    for node, target in _import_nodes(path):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name.split(".")[0] == "trustnav"}
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = module.split(".")
-                base = base if is_pkg else base[:-1]
-                base = base[: len(base) - (node.level - 1)]
-                target = ".".join([*base, node.module] if node.module else base)
-            else:
-                target = node.module or ""
-            if target.split(".")[0] != "trustnav":
-                continue
+        else:
             folder = SRC.parent.joinpath(*target.split("."))
             for a in node.names:
                 sub = folder / a.name
