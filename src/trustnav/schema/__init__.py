@@ -27,7 +27,7 @@ import numbers
 import re
 import types
 import typing
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Protocol, Union, get_args, get_origin
 
@@ -52,6 +52,7 @@ __all__ = [
     "check_keys",
     "did_you_mean",
     "load",
+    "load_each",
     "rules_of",
 ]
 
@@ -549,3 +550,19 @@ def load(
         raise error([f"{place.table}: {e}" for e in exc.errors]) from None
     except (ValueError, TypeError) as exc:
         raise error(f"{place.table}: {' '.join(str(exc).split())}") from None
+
+
+def load_each(
+    cls: type, tables: Sequence[Any], places: Sequence[Place], *, convert: Mapping[str, Converter] | None = None
+) -> tuple[Any, ...]:
+    """:func:`load` of each of ``tables`` (a TOML array of tables) at its place, every table's errors
+    collected and raised together."""
+    out, errors = [], []
+    for table, place in zip(tables, places, strict=True):
+        try:
+            out.append(load(cls, table, place, convert=convert))
+        except SchemaError as exc:
+            errors.extend(exc.errors)
+    if errors:
+        raise SchemaError(errors)
+    return tuple(out)

@@ -36,6 +36,7 @@ from trustnav.schema import (
     Text,
     check_fields,
     load,
+    load_each,
 )
 from trustnav.sim.engine import SIMULATION_DEADLINE, EpisodeResult, Observation, Sample, make_mpc, run
 from trustnav.trust import GammaParams
@@ -133,15 +134,7 @@ def _pedestrians(v: Any, place: InFile) -> tuple[Pedestrian, ...]:
     if not isinstance(v, list) or not v:
         raise SchemaError(f"{place.file} needs [[pedestrian]] tables, each with position = [x, y] (and optionally "
                           "velocity, trust)")  # fmt: skip
-    out, errors = [], []
-    for i, p in enumerate(v):
-        try:
-            out.append(load(Pedestrian, p, InFile(place.file, f"pedestrian {i + 1}")))
-        except SchemaError as exc:
-            errors.extend(exc.errors)
-    if errors:
-        raise SchemaError(errors)
-    return tuple(out)
+    return load_each(Pedestrian, v, [InFile(place.file, f"pedestrian {i + 1}") for i in range(len(v))])
 
 
 def _scenario_from_dict(d: dict[str, Any], source: str) -> PaperScenario:

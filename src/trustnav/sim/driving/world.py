@@ -50,6 +50,7 @@ from trustnav.schema import (
     check_fields,
     check_keys,
     load,
+    load_each,
     rules_of,
 )
 from trustnav.sim.driving import body
@@ -505,18 +506,12 @@ def _pedestrians(v: Any, place: Place) -> tuple[PedestrianSpec, ...]:
     if not isinstance(v, list) or not v:
         raise SchemaError(f"{place.table} needs [[pedestrian]] tables, each with name and position = [x, y]")
     file = place.file if isinstance(place, InFile) else str(place.table)
-    out, errors = [], []
-    for i, p in enumerate(v):
-        label = f"pedestrian {p['name']!r}" if isinstance(p, dict) and isinstance(p.get("name"), str) else (
-            f"pedestrian {i + 1}")  # fmt: skip
-        convert = {"appearance": _appearance, "alternative": _alternative}
-        try:
-            out.append(load(PedestrianSpec, p, InFile(file, label), convert=convert))
-        except SchemaError as exc:
-            errors.extend(exc.errors)
-    if errors:
-        raise SchemaError(errors)
-    return tuple(out)
+    places = [
+        InFile(file, f"pedestrian {p['name']!r}" if isinstance(p, dict) and isinstance(p.get("name"), str)
+               else f"pedestrian {i + 1}")
+        for i, p in enumerate(v)
+    ]  # fmt: skip
+    return load_each(PedestrianSpec, v, places, convert={"appearance": _appearance, "alternative": _alternative})
 
 
 def _scenario_from_dict(d: dict[str, Any], source: str) -> DriveScenario:
