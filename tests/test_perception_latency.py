@@ -12,7 +12,7 @@ import pytest
 
 from trustnav.campaigns.spec import PARAMS, SpecError, spec_from_dict
 from trustnav.cli import main
-from trustnav.sim.driving.episode import DriveSimulation, run_drive
+from trustnav.sim.driving.episode import DriveEnvironment, run_drive
 from trustnav.sim.driving.world import SensingSpec, load_drive_scenario
 
 
@@ -21,7 +21,7 @@ def _with_latency(name: str, latency: float):
     return replace(sc, sensing=replace(sc.sensing, perception_latency=latency))
 
 
-def _step(sim: DriveSimulation, command=(0.0, 0.0)):
+def _step(sim: DriveEnvironment, command=(0.0, 0.0)):
     obs = sim.observe()
     sim.advance(list(command))
     return obs
@@ -35,7 +35,7 @@ def test_latency_is_validated_with_a_clear_message(bad):
 
 def test_frames_reach_the_estimates_after_the_latency_stamped_with_their_capture_time():
     latency = 0.3
-    sim = DriveSimulation(_with_latency("case-1", latency), capture_rate=10.0)
+    sim = DriveEnvironment(_with_latency("case-1", latency), capture_rate=10.0)
     first_estimate = None
     for _ in range(30):  # 1.5 s at 20 Hz, car at rest
         obs = _step(sim)
@@ -56,12 +56,12 @@ def test_frames_reach_the_estimates_after_the_latency_stamped_with_their_capture
 
 
 def test_no_latency_delivers_each_frame_when_captured():
-    sim = DriveSimulation(load_drive_scenario("case-1"), capture_rate=10.0)
+    sim = DriveEnvironment(load_drive_scenario("case-1"), capture_rate=10.0)
     obs = _step(sim)
     assert len(obs.positions) == 2 and len(sim.frames) == 1 and not sim._in_flight
-    report = DriveSimulation(load_drive_scenario("case-1"), capture_rate=10.0).capture()
+    report = DriveEnvironment(load_drive_scenario("case-1"), capture_rate=10.0).capture()
     assert report is not None and report.index == 0
-    late = DriveSimulation(_with_latency("case-1", 0.2), capture_rate=10.0)
+    late = DriveEnvironment(_with_latency("case-1", 0.2), capture_rate=10.0)
     assert late.capture() is None and len(late._in_flight) == 1  # in flight, reported on delivery
 
 
@@ -72,7 +72,7 @@ def test_a_late_frame_is_predicted_to_now_for_a_walking_pedestrian():
     for latency in (0.0, 0.5):
         sc = _with_latency("case-2", latency)
         sc = replace(sc, pedestrians=(replace(sc.pedestrians[0], velocity=(-1.4, 0.0)),))
-        sim = DriveSimulation(sc, capture_rate=10.0)
+        sim = DriveEnvironment(sc, capture_rate=10.0)
         err = []
         for _ in range(60):  # 3 s, car at rest, the walker crossing
             obs = _step(sim)

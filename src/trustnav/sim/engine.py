@@ -1,4 +1,4 @@
-"""One episode engine: a :class:`World` protocol, a :class:`Controller` protocol and one runner.
+"""One episode engine: a :class:`Environment` protocol, a :class:`Controller` protocol and one runner.
 
 Every closed-loop episode of trustnav (the paper's scenarios, random worlds, the drive on
 trustnav's own world or on CARLA, the Gymnasium environment) is a world stepped by a controller
@@ -33,6 +33,7 @@ __all__ = [
     "STEP_MS_EDGES",
     "Controller",
     "Decision",
+    "Environment",
     "EpisodeResult",
     "FunctionController",
     "MpcPolicy",
@@ -40,7 +41,6 @@ __all__ = [
     "Rollout",
     "Sample",
     "StepStats",
-    "World",
     "make_mpc",
     "make_solver",
     "run",
@@ -128,7 +128,7 @@ class Decision:
 
 
 @runtime_checkable
-class World(Protocol):
+class Environment(Protocol):
     """A world the runner can step. ``period``: the control period (s); ``name``: a short tag."""
 
     name: str
@@ -353,7 +353,7 @@ class Rollout:
     """An episode in progress on ``world``: the runner's bookkeeping, also driven step by step from
     outside (the Gymnasium environment). ``horizon`` and ``safety_radius`` label the result."""
 
-    def __init__(self, world: World, horizon: int | None = None, safety_radius: float | None = None) -> None:
+    def __init__(self, world: Environment, horizon: int | None = None, safety_radius: float | None = None) -> None:
         self.world = world
         self.horizon = horizon
         self.safety_radius = safety_radius
@@ -414,7 +414,7 @@ class Rollout:
 
 
 def run(
-    world: World,
+    world: Environment,
     controller: Controller,
     *,
     seed: int | None = None,

@@ -19,11 +19,11 @@ Two ways the controller learns where pedestrians are (``state``):
 * ``true``: positions and velocities from the world (as in the authors' code), optionally with
   noise; trust from perception, associated with the world's pedestrians by their true boxes.
 
-The world is one implementation of :class:`DriveWorld` (ego state, pedestrian states, what the
+The world is one implementation of :class:`World` (ego state, pedestrian states, what the
 camera sees, apply a command, advance time): :class:`SimWorld` is trustnav's own (bicycle plant with
 actuation latency, constant-velocity pedestrians), ``trustnav.carla_bridge.CarlaWorld`` a CARLA
-server. :class:`DriveSimulation` adds the camera rate, sensing and trust memory to a world and is the
-engine's :class:`~trustnav.sim.engine.World` of every drive (:func:`drive` runs it with the MPC on
+server. :class:`DriveEnvironment` adds the camera rate, sensing and trust memory to a world and is the
+engine's :class:`~trustnav.sim.engine.Environment` of every drive (:func:`drive` runs it with the MPC on
 the engine's runner; the Gymnasium environment steps the same world through a
 :class:`~trustnav.sim.engine.Rollout` with any controller);
 :func:`run_drive` is a pure function of (scenario, parameters, seed) that returns a
@@ -69,10 +69,10 @@ from trustnav.sim.engine import Decision, EpisodeResult, Observation, Sample, ma
 
 __all__ = [
     "STATES",
+    "DriveEnvironment",
     "DriveResult",
-    "DriveSimulation",
-    "DriveWorld",
     "SimWorld",
+    "World",
     "drive",
     "drive_metrics",
     "drive_result",
@@ -87,7 +87,7 @@ STATES = ("perceived", "true")
 
 
 @runtime_checkable
-class DriveWorld(Protocol):
+class World(Protocol):
     """What the drive loop needs from a world, in the scenario's coordinates (metres, x/y ground,
     yaw rad counter-clockwise from +x; pedestrians in scenario order)."""
 
@@ -186,10 +186,10 @@ class SimWorld:
         return sub, peds
 
 
-class DriveSimulation:
+class DriveEnvironment:
     """A world with its camera rate, sensing and trust memory, advanced one control period at a time.
 
-    ``world``: a :class:`DriveWorld` (default :class:`SimWorld` of the scenario). ``sensor``: a
+    ``world``: a :class:`World` (default :class:`SimWorld` of the scenario). ``sensor``: a
     :class:`KeypointSensor` (default, built from the scenario and seed) or a :class:`RenderSensor`.
     ``state``: "perceived" (the controller's pedestrians from the camera) or "true" (from the
     world); see the module. Randomness (sensing noise, controller-input noise) comes from ``seed``.
@@ -202,7 +202,7 @@ class DriveSimulation:
         sensor: KeypointSensor | RenderSensor | None = None,
         capture_rate: float | None = None,
         control_rate: float | None = None,
-        world: DriveWorld | None = None,
+        world: World | None = None,
         max_frames: int | None = None,
         state: str = "perceived",
     ) -> None:
@@ -220,7 +220,7 @@ class DriveSimulation:
         self._own_sensor = sensor is None
         self.sensor: KeypointSensor | RenderSensor | None = sensor
         self._given_world = world
-        self.world: DriveWorld = SimWorld(scenario) if world is None else world
+        self.world: World = SimWorld(scenario) if world is None else world
         self.name = self.world.name
         self.command_size = 2  # the car's (steer, acceleration)
         n, expected = len(self.world.pedestrian_states()[0]), len(scenario.pedestrians)
@@ -355,7 +355,7 @@ class DriveSimulation:
         if self.state_source == "perceived":
             seen = [SeenPerson(s.person, s.eye_contact, s.phone) for s in sensed]
             to_world = getattr(self.world, "camera_to_scenario", None)  # e.g. CARLA's left-handed map
-            ids = self.perceived.update(c.time, cam, seen, self.street.ground_height, to_world)
+            ids = self.perceived.add_frame(c.time, cam, seen, self.street.ground_height, to_world)
             tracks = tuple(self.perceived.tracker.predict(c.time))
             by_id = {t.track_id: t for t in tracks}
             memory = self.trust.estimator
@@ -491,7 +491,7 @@ class DriveResult:
     reached_goal: bool
     time_to_goal: float | None
     min_distance_fine: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # over plant sub-steps
-    world: str = "sim"  # which DriveWorld ran it
+    world: str = "sim"  # which World ran it
     episode: EpisodeResult | None = None  # the engine's result it was read from
     state: str = "true"  # where the controller's pedestrian states came from ("perceived" or "true")
 
@@ -706,7 +706,7 @@ def run_drive(
     """
     sensor = make_sensor(sensing, renderer, pipeline)
     sc = prepare_scenario(scenario, attentive, control_rate)
-    sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
+    sim = DriveEnvironment(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
     return drive(sim, sensing, progress=progress, max_frames=max_frames)
 
 
@@ -722,7 +722,7 @@ def prepare_scenario(
 
 
 def make_sensor(sensing: str, renderer: Any = None, pipeline: Any = None) -> RenderSensor | None:
-    """The sensor of a sensing mode: None for "keypoints" (DriveSimulation builds it from its seed),
+    """The sensor of a sensing mode: None for "keypoints" (DriveEnvironment builds it from its seed),
     a RenderSensor over ``renderer`` and ``pipeline`` for "render"."""
     if sensing not in SENSING_MODES:
         raise ValueError(f"sensing must be one of {SENSING_MODES}, got {sensing!r}")
@@ -734,12 +734,12 @@ def make_sensor(sensing: str, renderer: Any = None, pipeline: Any = None) -> Ren
 
 
 def drive(
-    sim: DriveSimulation,
+    sim: DriveEnvironment,
     sensing: str,
     progress: Callable[[float, float], None] | None = None,
     max_frames: int | None = None,
 ) -> DriveResult:
-    """Run the trust-aware MPC on ``sim`` (any :class:`DriveWorld`) with the engine's runner until
+    """Run the trust-aware MPC on ``sim`` (any :class:`World`) with the engine's runner until
     the goal or the scenario's duration: per control step capture a frame when due, read the
     controller's inputs, solve, and apply the plan's first input (index 0: the command for now; the
     controller itself plans from the state predicted ``control.latency`` ahead)."""
@@ -757,7 +757,7 @@ def drive(
     return drive_result(sim, sensing, run(sim, policy, on_step=report))
 
 
-def drive_result(sim: DriveSimulation, sensing: str, episode: EpisodeResult) -> DriveResult:
+def drive_result(sim: DriveEnvironment, sensing: str, episode: EpisodeResult) -> DriveResult:
     """The :class:`DriveResult` of an engine episode on ``sim``."""
     plans = [p for p in episode.plans if p is not None]
     n = episode.steps

@@ -40,7 +40,7 @@ from trustnav.perception.phone import PoseGeometryPhoneClassifier, TemporalPhone
 from trustnav.perception.types import Person, box_iou
 from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.world import SensingSpec, street_of
-from trustnav.trust import PAPER_TRUST, Observation, TrustEstimator, TrustParams
+from trustnav.trust import PAPER_TRUST, Sighting, TrustEstimator, TrustParams
 
 __all__ = [
     "SENSING_MODES",
@@ -283,7 +283,7 @@ class KeypointSensor:
             inputs = np.stack([normalise_keypoints(p.keypoints, p.confidences, w) for _, p in found])
             eye = self.eye_model.predict(inputs)
             for (j, p), e in zip(found, eye, strict=True):
-                phone = self.temporal_phone.update(j, time, p.keypoints, p.confidences).phone
+                phone = self.temporal_phone.add_pose(j, time, p.keypoints, p.confidences).phone
                 out.append(SensedPerson(j, j, p, float(e), float(phone)))
         return out, None, 0, {"keypoints": _time.perf_counter() - t0}
 
@@ -348,7 +348,7 @@ class TrustTracker:
         """Update from the frame's people labelled with a pedestrian (unlabelled ones are skipped)."""
         sensed = [s for s in sensed if s.index is not None]
         obs = [
-            Observation(
+            Sighting(
                 track_id=s.index,
                 time=time,
                 c_smartphone=s.phone,
@@ -358,7 +358,7 @@ class TrustTracker:
             )
             for s in sensed
         ]
-        self.estimator.update(obs, time=time)
+        self.estimator.add_frame(obs, time=time)
         for s in sensed:
             self.observations[s.index] += 1  # type: ignore[index]
 
