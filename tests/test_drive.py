@@ -167,7 +167,7 @@ def test_capture_rate_sets_the_number_of_trust_updates():
             sim.advance([0.0, 0.0])
     assert len(slow.frames) == 2 and len(fast.frames) == 20
     # monotone trust (alpha = 1): more frames, more trust
-    assert fast.trust.trusts()[0] > slow.trust.trusts()[0]
+    assert fast.pedestrian_trusts()[0] > slow.pedestrian_trusts()[0]
 
 
 def test_cli_drive_keypoints_writes_outputs(tmp_path, capsys):

@@ -178,14 +178,14 @@ def test_carla_world_runs_on_the_engine(runs, monkeypatch):
         s.close()
     ((world, res),) = runs
     assert type(world).__name__ == "DriveEnvironment" and world.world.name == "carla"
-    assert r.episode is res and res.world == "carla" and r.metrics()["world"] == "carla"
+    assert r.episode is res and res.environment == "carla" and r.metrics()["world"] == "carla"
     _assert_record_shape(res.to_record())
 
 
 @pytest.mark.parametrize(
     ("command", "message"),
     [
-        (np.zeros(3), "controller command must be 2 numbers for world 'paper'"),
+        (np.zeros(3), "controller command must be 2 numbers for environment 'paper'"),
         (np.array([np.nan, 0.0]), "controller command must be finite"),
         ("fast", "controller command must be a vector of numbers"),
     ],

@@ -42,7 +42,7 @@ def test_frames_reach_the_estimates_after_the_latency_stamped_with_their_capture
         now = obs.time
         # delivered frames are exactly those captured at least `latency` ago, in capture order
         assert all(f.time <= now - latency + 1e-9 for f in sim.frames)
-        assert all(c.time > now - latency + 1e-9 for c in sim._in_flight)
+        assert all(c.time > now - latency + 1e-9 for c in sim.latency.in_flight)
         assert [f.index for f in sim.frames] == list(range(len(sim.frames)))
         assert [f.time for f in sim.frames] == pytest.approx([k / 10.0 for k in range(len(sim.frames))])
         if first_estimate is None and len(obs.positions):
@@ -52,17 +52,17 @@ def test_frames_reach_the_estimates_after_the_latency_stamped_with_their_capture
     # each report says when the controller got it: the first control step at or after capture + latency
     lag = np.array([f.known_at - f.time for f in sim.frames])
     assert np.all(lag >= latency - 1e-9) and np.all(lag < latency + sim.period)
-    assert sim._captured == len(sim.frames) + len(sim._in_flight)
+    assert sim._captured == len(sim.frames) + len(sim.latency)
 
 
 def test_no_latency_delivers_each_frame_when_captured():
     sim = DriveEnvironment(load_drive_scenario("case-1"), capture_rate=10.0)
     obs = _step(sim)
-    assert len(obs.positions) == 2 and len(sim.frames) == 1 and not sim._in_flight
+    assert len(obs.positions) == 2 and len(sim.frames) == 1 and not len(sim.latency)
     report = DriveEnvironment(load_drive_scenario("case-1"), capture_rate=10.0).capture()
     assert report is not None and report.index == 0
     late = DriveEnvironment(_with_latency("case-1", 0.2), capture_rate=10.0)
-    assert late.capture() is None and len(late._in_flight) == 1  # in flight, reported on delivery
+    assert late.capture() is None and len(late.latency) == 1  # in flight, reported on delivery
 
 
 def test_a_late_frame_is_predicted_to_now_for_a_walking_pedestrian():
