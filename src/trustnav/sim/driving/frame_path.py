@@ -26,13 +26,14 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from trustnav.geometry.camera import CameraPose
 from trustnav.perception.pedestrians import PedestrianEstimator, SeenPerson
+from trustnav.perception.world_tracking import TrackState
+from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.sensing import KeypointSensor, RenderSensor, SensedPerson
 from trustnav.sim.driving.world import SensingSpec
 from trustnav.sim.engine import Observation
@@ -41,7 +42,7 @@ from trustnav.trust import Sighting, TrustEstimator
 __all__ = ["Frame", "FramePath", "PerceivedPath", "PerceptionLatency", "TrackedFrame", "TruePath", "frame_path"]
 
 Sensor = KeypointSensor | RenderSensor
-Bodies = Sequence[tuple[Any, Any]]
+Bodies = Sequence[tuple[Skeleton, Appearance]]
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ class TrackedFrame:
 
     frame: Frame
     people: list[SensedPerson]
-    tracks: tuple[Any, ...] = ()
+    tracks: tuple[TrackState, ...] = ()
 
 
 class PerceptionLatency:

@@ -8,14 +8,12 @@ world pedestrian is read for the records.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.sim.driving.frame_path import TrackedFrame
+from trustnav.sim.driving.frame_path import Bodies, TrackedFrame
 from trustnav.sim.driving.sensing import FrameReport, PedestrianView, in_view, projected_box
 from trustnav.sim.driving.world import SensingSpec
 from trustnav.trust import TrustEstimator
@@ -27,7 +25,7 @@ __all__ = ["FrameScoring"]
 class _Truth:
     """The world at a frame's capture (scoring only)."""
 
-    bodies: Sequence[tuple[Any, Any]]
+    bodies: Bodies
     positions: NDArray[np.float64]
     velocities: NDArray[np.float64]
 
@@ -42,7 +40,7 @@ class FrameScoring:
         self._track_of: dict[int, int] = {}  # pedestrian index -> world track last seen as it
         self._trust_of = np.zeros(n)  # its trust then (0 until seen)
 
-    def keep(self, frame: int, bodies: Sequence[tuple[Any, Any]], positions: NDArray, velocities: NDArray) -> None:
+    def keep(self, frame: int, bodies: Bodies, positions: NDArray, velocities: NDArray) -> None:
         """The truth at the capture of frame ``frame``, until its report."""
         self._truth[frame] = _Truth(bodies, positions, velocities)
 
