@@ -605,8 +605,8 @@ def run_drive(
     """
     sensor = make_sensor(sensing, renderer, pipeline)
     sc = prepare_scenario(scenario, attentive, control_rate)
-    sim = DriveEnvironment(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
-    return drive(sim, sensing, progress=progress, max_frames=max_frames)
+    environment = DriveEnvironment(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
+    return drive(environment, sensing, progress=progress, max_frames=max_frames)
 
 
 def prepare_scenario(
@@ -633,38 +633,38 @@ def make_sensor(sensing: str, renderer: Any = None, pipeline: Any = None) -> Ren
 
 
 def drive(
-    sim: DriveEnvironment,
+    environment: DriveEnvironment,
     sensing: str,
     progress: Callable[[float, float], None] | None = None,
     max_frames: int | None = None,
 ) -> DriveResult:
-    """Run the trust-aware MPC on ``sim`` (any :class:`World`) with the engine's runner until
-    the goal or the scenario's duration: per control step capture a frame when due, read the
-    controller's inputs, solve, and apply the plan's first input (index 0: the command for now; the
+    """Run the trust-aware MPC on ``environment`` (on any :class:`World`) with the engine's runner
+    until the goal or the scenario's duration: per control step its ``observe()`` (a frame's path to
+    the controller), solve, and apply the plan's first input (index 0: the command for now; the
     controller itself plans from the state predicted ``control.latency`` ahead)."""
-    sc = sim.scenario
+    sc = environment.scenario
     if max_frames is not None:
-        sim.max_frames = max_frames
-    config = sc.control.config(sim.capture_rate, sc.sensing.perception_latency)
+        environment.max_frames = max_frames
+    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency)
     model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
     policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road))
 
     def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:
-            progress(sim.time, sc.duration)
+            progress(environment.time, sc.duration)
 
-    return drive_result(sim, sensing, run(sim, policy, on_step=report))
+    return drive_result(environment, sensing, run(environment, policy, on_step=report))
 
 
-def drive_result(sim: DriveEnvironment, sensing: str, episode: EpisodeResult) -> DriveResult:
-    """The :class:`DriveResult` of an engine episode on ``sim``."""
+def drive_result(environment: DriveEnvironment, sensing: str, episode: EpisodeResult) -> DriveResult:
+    """The :class:`DriveResult` of an engine episode on ``environment``."""
     plans = [p for p in episode.plans if p is not None]
     n = episode.steps
     return DriveResult(
-        scenario=sim.scenario,
+        scenario=environment.scenario,
         sensing=sensing,
-        seed=sim.seed,
-        capture_rate=sim.capture_rate,
+        seed=environment.seed,
+        capture_rate=environment.capture_rate,
         times=episode.times,
         ego=episode.ego,
         pedestrians=episode.pedestrians,
@@ -674,13 +674,13 @@ def drive_result(sim: DriveEnvironment, sensing: str, episode: EpisodeResult) ->
         slack=np.array([s.relaxed for s in episode.stats], dtype=bool).reshape(n),
         solve_times=np.array([s.solve_time for s in episode.stats if math.isfinite(s.solve_time)]),
         plans=np.array(plans) if plans else np.zeros((0, 2, 4)),
-        frames=sim.frames,
+        frames=environment.frames,
         reached_goal=episode.reached_goal,
-        time_to_goal=sim.time if episode.reached_goal else None,
-        min_distance_fine=sim.min_distance_fine.copy() if sim.steps else np.zeros(0),
-        world=sim.world.name,
+        time_to_goal=environment.time if episode.reached_goal else None,
+        min_distance_fine=environment.min_distance_fine.copy() if environment.steps else np.zeros(0),
+        world=environment.world.name,
         episode=episode,
-        state=sim.state_source,
+        state=environment.state_source,
     )
 
 
