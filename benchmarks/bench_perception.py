@@ -105,7 +105,7 @@ def _people(out: list, estimator: TrustEstimator | None = None, t: float = 0.0) 
     trust after this frame."""
     traits = {}
     if estimator is not None:
-        tracks = estimator.update(PerceptionPipeline.observations(out, t), t)
+        tracks = estimator.add_frame(PerceptionPipeline.sightings(out, t), t)
         traits = {i: (st.eye, st.smartphone, st.trust) for i, st in tracks.items()}
     nan3 = (math.nan, math.nan, math.nan)
     return [{"id": tp.track_id, "bbox": tp.person.bbox, "eye": tp.eye_contact, "phone": tp.phone,

@@ -107,8 +107,8 @@ def run(args: argparse.Namespace) -> dict:
 def figure(path: Path, seed: int = 0) -> None:
     """Speed and distance over time on ``examples/scenarios/step-out.toml``: trust-aware with and
     without caution, and the controller handed constant trust 0 and 1 (``trustnav compare``)."""
-    from trustnav.sim.driving.compare import ConstantTrustWorld
-    from trustnav.sim.driving.episode import DriveSimulation, drive
+    from trustnav.sim.driving.compare import ConstantTrustEnvironment
+    from trustnav.sim.driving.episode import DriveEnvironment, drive
     from trustnav.viz.style import legend, new_figure, styled
 
     base = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
@@ -117,8 +117,8 @@ def figure(path: Path, seed: int = 0) -> None:
              ("constant trust 0", True, 0.0), ("constant trust 1", True, 1.0))  # fmt: skip
     for label, caution, trust in modes:
         sc = dataclasses.replace(base, control=dataclasses.replace(base.control, caution=caution))
-        sim = DriveSimulation(sc, seed=seed)
-        r = drive(sim if trust is None else ConstantTrustWorld(sim, trust), "keypoints")  # type: ignore[arg-type]
+        sim = DriveEnvironment(sc, seed=seed)
+        r = drive(sim if trust is None else ConstantTrustEnvironment(sim, trust), "keypoints")  # type: ignore[arg-type]
         m = drive_metrics(r)
         runs.append((label, r, m))
         print(f"{label:40s} closest {m['pedestrians'][0]['min_distance']:.2f} m  goal {m['time_to_goal']} s")

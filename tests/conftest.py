@@ -153,11 +153,13 @@ def quick_demo() -> Any:
     import dataclasses
 
     from trustnav.sim.driving import load_drive_scenario, run_drive
-    from trustnav.sim.driving.compare import ConstantTrustWorld
+    from trustnav.sim.driving.compare import ConstantTrustEnvironment
     from trustnav.sim.driving.demo import DEMO_EQUAL_TRUST, DemoRuns
-    from trustnav.sim.driving.episode import DriveSimulation, drive, prepare_scenario
+    from trustnav.sim.driving.episode import DriveEnvironment, drive, prepare_scenario
 
     sc = dataclasses.replace(load_drive_scenario("case-1"), duration=1.0)
-    equal = drive(ConstantTrustWorld(DriveSimulation(prepare_scenario(sc), seed=0), DEMO_EQUAL_TRUST), "keypoints")
+    equal = drive(
+        ConstantTrustEnvironment(DriveEnvironment(prepare_scenario(sc), seed=0), DEMO_EQUAL_TRUST), "keypoints"
+    )
     aware = run_drive(sc, sensing="keypoints")
     return DemoRuns(aware, equal, aware, "keypoints")

@@ -647,7 +647,7 @@ def test_flip_y_frame_drives_the_mirrored_placement(server, listening_port):
 
 def test_render_sensing_perceives_carlas_image(server, listening_port):
     from trustnav.carla_bridge.world import CarlaCamera, CarlaWorld
-    from trustnav.sim.driving.episode import DriveSimulation, DriveWorld, SimWorld
+    from trustnav.sim.driving.episode import DriveEnvironment, SimWorld, World
     from trustnav.sim.driving.sensing import RenderSensor
 
     seen = []
@@ -660,8 +660,8 @@ def test_render_sensing_perceives_carlas_image(server, listening_port):
     sc = load_drive_scenario("case-1")
     with CarlaSession(fake_carla(server), _options(listening_port), sc) as session:
         world = CarlaWorld(session, sc.camera)
-        assert isinstance(world, DriveWorld) and isinstance(SimWorld(sc), DriveWorld)  # one interface
-        sim = DriveSimulation(sc, sensor=RenderSensor(CarlaCamera(world), Pipeline()), world=world)
+        assert isinstance(world, World) and isinstance(SimWorld(sc), World)  # one interface
+        sim = DriveEnvironment(sc, sensor=RenderSensor(CarlaCamera(world), Pipeline()), world=world)
         for _ in range(21):
             if sim.capture_due():
                 sim.capture()

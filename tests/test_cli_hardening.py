@@ -526,7 +526,7 @@ def test_demo_replaces_its_own_default_folder_but_not_a_named_one(tmp_path, monk
 def test_validation_messages_name_the_argument():
     from trustnav.control import MpcConfig, MpcController, SingleIntegrator, VelocityTrackingCost
     from trustnav.control.solvers import make_solver
-    from trustnav.trust import GammaParams, Observation, TrustEstimator, TrustParams
+    from trustnav.trust import GammaParams, Sighting, TrustEstimator, TrustParams
 
     with pytest.raises(ValueError, match="rho must have 3 weights"):
         TrustParams(rho="abc")
@@ -538,9 +538,9 @@ def test_validation_messages_name_the_argument():
     with pytest.raises(ValueError, match="alpha must be a number, got True"):
         TrustParams(alpha=True)
     with pytest.raises(ValueError, match="c_eye must be a confidence in"):
-        Observation(track_id=1, time=0.0, c_eye=2.0)
+        Sighting(track_id=1, time=0.0, c_eye=2.0)
     with pytest.raises(ValueError, match="track_id must be an integer"):
-        Observation(track_id="a", time=0.0)
+        Sighting(track_id="a", time=0.0)
     with pytest.raises(ValueError, match="keep_time must be a number"):
         TrustEstimator(keep_time="x")
     with pytest.raises(ValueError, match="goal must be 2 finite coordinates"):

@@ -11,7 +11,7 @@ import pytest
 
 from trustnav.cli import main
 from trustnav.sim.driving import load_drive_scenario
-from trustnav.sim.driving.compare import ConstantTrustWorld, compare_trust, comparison_rows
+from trustnav.sim.driving.compare import ConstantTrustEnvironment, compare_trust, comparison_rows
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +28,7 @@ def test_only_the_trust_the_controller_gets_differs(case1):
     for run in case1.runs[1:]:
         assert 0.0 < run.result.trusts[-1, 1] < run.result.trusts[-1, 0] < 1.0
     with pytest.raises(ValueError, match="trust"):
-        ConstantTrustWorld(None, 1.5)  # type: ignore[arg-type]
+        ConstantTrustEnvironment(None, 1.5)  # type: ignore[arg-type]
 
 
 def test_what_trust_buys_in_case_1(case1):

@@ -1,6 +1,6 @@
 """`trustnav demo` tells the story: the trust-aware run beside an equal-trust (trust-blind) run of
 the same world, and the headline numbers of both (the library's :func:`run_demo`, built from the
-comparison's :class:`ConstantTrustWorld`; the command writes its outputs once)."""
+comparison's :class:`ConstantTrustEnvironment`; the command writes its outputs once)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 from trustnav.cli import main
 from trustnav.sim.driving import demo as story
-from trustnav.sim.driving.compare import ConstantTrustWorld, compare_trust
+from trustnav.sim.driving.compare import ConstantTrustEnvironment, compare_trust
 from trustnav.sim.driving.demo import DEMO_EQUAL_TRUST, run_demo
 from trustnav.sim.engine import Observation
 
@@ -21,7 +21,7 @@ from trustnav.sim.engine import Observation
 def test_constant_trust_world_hands_the_controller_one_trust_and_passes_the_rest_through():
     obs = Observation(0.5, np.zeros(4), np.ones((3, 2)), np.zeros((3, 2)), np.array([0.1, 0.9, 0.4]))
     sim = SimpleNamespace(observe=lambda: obs, scenario="sc", frames=[1, 2])
-    world = ConstantTrustWorld(sim, DEMO_EQUAL_TRUST)  # type: ignore[arg-type]
+    world = ConstantTrustEnvironment(sim, DEMO_EQUAL_TRUST)  # type: ignore[arg-type]
     seen = world.observe()
     assert seen.trusts.tolist() == [1.0, 1.0, 1.0]
     assert seen.positions is obs.positions and seen.time == 0.5

@@ -10,7 +10,7 @@ import pytest
 
 from trustnav.cli import main
 from trustnav.geometry.camera import CameraSpec
-from trustnav.sim.driving.episode import DriveSimulation, run_drive
+from trustnav.sim.driving.episode import DriveEnvironment, run_drive
 from trustnav.sim.driving.sensing import KeypointSensor, hidden_joint_confidences
 from trustnav.sim.driving.world import (
     PedestrianSpec,
@@ -158,8 +158,8 @@ def test_keypoint_sensing_culls_hides_and_sees_nobody_behind():
 
 def test_capture_rate_sets_the_number_of_trust_updates():
     sc = load_drive_scenario("case-1")
-    slow = DriveSimulation(sc, capture_rate=1.0)
-    fast = DriveSimulation(sc, capture_rate=10.0)
+    slow = DriveEnvironment(sc, capture_rate=1.0)
+    fast = DriveEnvironment(sc, capture_rate=10.0)
     for sim in (slow, fast):
         for _ in range(40):  # 2 s at 20 Hz, car at rest
             if sim.capture_due():
@@ -167,7 +167,7 @@ def test_capture_rate_sets_the_number_of_trust_updates():
             sim.advance([0.0, 0.0])
     assert len(slow.frames) == 2 and len(fast.frames) == 20
     # monotone trust (alpha = 1): more frames, more trust
-    assert fast.trust.trusts()[0] > slow.trust.trusts()[0]
+    assert fast.pedestrian_trusts()[0] > slow.pedestrian_trusts()[0]
 
 
 def test_cli_drive_keypoints_writes_outputs(tmp_path, capsys):

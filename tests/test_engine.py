@@ -9,12 +9,12 @@ from trustnav.sim import engine
 from trustnav.sim.engine import (
     RECORD_FIELDS,
     Decision,
+    Environment,
     EpisodeResult,
     FunctionController,
     Observation,
     Rollout,
     Sample,
-    World,
     run,
 )
 
@@ -22,7 +22,7 @@ from trustnav.sim.engine import (
 @pytest.fixture
 def runs(monkeypatch):
     """Every call of engine.run, with its world (counted where the episode kinds call it)."""
-    seen: list[tuple[World, EpisodeResult]] = []
+    seen: list[tuple[Environment, EpisodeResult]] = []
     real = engine.run
 
     def spy(world, controller, **kw):
@@ -49,8 +49,8 @@ def test_paper_random_and_drive_run_on_the_engine_with_one_record_shape(runs):
     ep = run_episode(load_scenario("paper-2"))
     rec_w = run_world(sample_world(RandomWorldSpec(family="bicycle"), 2))
     dr = run_drive(load_drive_scenario("case-1"), seed=0)
-    assert [type(w).__name__ for w, _ in runs] == ["PaperWorld", "RandomEpisodeWorld", "DriveSimulation"]
-    assert all(isinstance(w, World) for w, _ in runs)
+    assert [type(w).__name__ for w, _ in runs] == ["PaperEnvironment", "RandomEnvironment", "DriveEnvironment"]
+    assert all(isinstance(w, Environment) for w, _ in runs)
     recs = [res.to_record() for _, res in runs]
     for rec in recs:
         _assert_record_shape(rec)
@@ -80,11 +80,11 @@ def test_same_seed_same_episode():
 
 
 def test_drive_world_resets_to_the_same_episode():
-    from trustnav.sim.driving import DriveSimulation, load_drive_scenario
+    from trustnav.sim.driving import DriveEnvironment, load_drive_scenario
     from trustnav.sim.engine import make_mpc
 
     sc = load_drive_scenario("case-1")
-    sim = DriveSimulation(sc, seed=1)
+    sim = DriveEnvironment(sc, seed=1)
 
     def policy():
         return make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True)
@@ -96,12 +96,12 @@ def test_drive_world_resets_to_the_same_episode():
 
 
 def test_gym_environment_steps_the_engine_world_like_the_runner():
-    """The Gym env's step is the engine's Rollout on the same DriveSimulation: the MPC's commands
+    """The Gym env's step is the engine's Rollout on the same DriveEnvironment: the MPC's commands
     sent through env.step give the episode run() gives."""
     import gymnasium as gym
 
     import trustnav.sim.driving.gym_env  # noqa: F401
-    from trustnav.sim.driving import DriveSimulation, load_drive_scenario
+    from trustnav.sim.driving import DriveEnvironment, load_drive_scenario
     from trustnav.sim.engine import make_mpc
 
     sc = load_drive_scenario("case-1")
@@ -109,10 +109,10 @@ def test_gym_environment_steps_the_engine_world_like_the_runner():
     def policy():
         return make_mpc(sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal), sc.control.config(), timed=True)
 
-    ref = run(DriveSimulation(sc, seed=2), policy(), max_steps=40)
+    ref = run(DriveEnvironment(sc, seed=2), policy(), max_steps=40)
     env = gym.make("trustnav/Drive-v0", config={"scenario": "case-1", "normalize_actions": False})  # physical
     obs, _ = env.reset(seed=2)
-    assert isinstance(env.unwrapped.sim, World) and isinstance(env.unwrapped.rollout, Rollout)
+    assert isinstance(env.unwrapped.sim, Environment) and isinstance(env.unwrapped.rollout, Rollout)
     mpc = policy()
     for _ in range(40):
         o = Observation(float(obs["time"][0]), obs["ego"], obs["pedestrians"], obs["velocities"], obs["trusts"])
@@ -177,22 +177,22 @@ def test_carla_world_runs_on_the_engine(runs, monkeypatch):
     finally:
         s.close()
     ((world, res),) = runs
-    assert type(world).__name__ == "DriveSimulation" and world.world.name == "carla"
-    assert r.episode is res and res.world == "carla" and r.metrics()["world"] == "carla"
+    assert type(world).__name__ == "DriveEnvironment" and world.world.name == "carla"
+    assert r.episode is res and res.environment == "carla" and r.metrics()["world"] == "carla"
     _assert_record_shape(res.to_record())
 
 
 @pytest.mark.parametrize(
     ("command", "message"),
     [
-        (np.zeros(3), "controller command must be 2 numbers for world 'paper'"),
+        (np.zeros(3), "controller command must be 2 numbers for environment 'paper'"),
         (np.array([np.nan, 0.0]), "controller command must be finite"),
         ("fast", "controller command must be a vector of numbers"),
     ],
 )
 def test_a_bad_command_is_refused_by_name(command, message):
-    from trustnav.sim.paper import PaperWorld, load_scenario
+    from trustnav.sim.paper import PaperEnvironment, load_scenario
 
-    world = PaperWorld(load_scenario("paper-1"))
+    world = PaperEnvironment(load_scenario("paper-1"))
     with pytest.raises(ValueError, match=message):
         engine.run(world, engine.FunctionController(lambda obs: command), max_steps=3)

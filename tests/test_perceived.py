@@ -16,7 +16,7 @@ from trustnav.geometry import CameraSpec
 from trustnav.perception.localisation import GroundEstimate, GroundLocaliser, LocaliserConfig
 from trustnav.perception.types import Person
 from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
-from trustnav.sim.driving.episode import DriveSimulation, run_drive
+from trustnav.sim.driving.episode import DriveEnvironment, run_drive
 from trustnav.sim.driving.sensing import KeypointSensor
 from trustnav.sim.driving.world import load_drive_scenario, pedestrian_bodies, street_of
 
@@ -138,7 +138,7 @@ def _sigma_after(rate: float, seconds: float, config: WorldTrackerConfig, bias=(
     tr = WorldTracker(config)
     n = round(seconds * rate)
     for k in range(n + 1):
-        tr.update(k / rate, [_estimate(bias, sigma=0.3)])
+        tr.add_frame(k / rate, [_estimate(bias, sigma=0.3)])
     (state,) = tr.predict(n / rate)
     sigma = math.sqrt(np.linalg.eigvalsh(state.covariance[:2, :2])[-1])
     return sigma, float(np.linalg.norm(state.mean[:2])) / sigma
@@ -196,7 +196,7 @@ def test_tracker_keeps_identity_through_one_second_gaps_and_a_crossing():
         t = float(k)
         a = np.array([-6.0 + 1.5 * t, 0.0])
         b = np.array([6.0 - 1.5 * t, 0.6])
-        got = tr.update(t, [_estimate(a + rng.normal(0, 0.15, 2)), _estimate(b + rng.normal(0, 0.15, 2))])
+        got = tr.add_frame(t, [_estimate(a + rng.normal(0, 0.15, 2)), _estimate(b + rng.normal(0, 0.15, 2))])
         ids.append(got)
     assert all(i == ids[0] for i in ids) and ids[0][0] != ids[0][1]
     (sa, sb) = sorted(tr.predict(8.0), key=lambda s: s.track_id)
@@ -209,25 +209,25 @@ def test_standing_person_out_of_view_is_kept_with_growing_uncertainty_then_dropp
     tr = WorldTracker(WorldTrackerConfig(out_of_view_seconds=6.0))  # standing: kept by the time rule
     cam0 = sc.camera.pose([33.5, 129.0], -math.pi / 2)
     for k in range(4):
-        (tid,) = tr.update(float(k), [_estimate([37.5, 101.0], 0.3)], camera=cam0)
+        (tid,) = tr.add_frame(float(k), [_estimate([37.5, 101.0], 0.3)], camera=cam0)
     beside = sc.camera.pose([33.5, 103.0], -math.pi / 2)  # the person is beside the car, out of view
     spreads = []
     for t in (5.0, 6.0, 8.0):
-        assert tr.update(t, [], camera=beside) == []
+        assert tr.add_frame(t, [], camera=beside) == []
         (s,) = tr.predict(t)
         assert s.track_id == tid
         spreads.append(np.trace(s.position_covariance))
     assert spreads[0] < spreads[1] < spreads[2]
     assert np.hypot(*(s.position - [37.5, 101.0])) < 0.3  # predicted standing, not wandering
-    tr.update(10.0, [], camera=beside)
+    tr.add_frame(10.0, [], camera=beside)
     assert tr.predict(10.0) == []  # out of view for more than 6 s
     # a tentative track (one hit) is dropped at its first miss where it should have been seen
     tr2 = WorldTracker()
-    tr2.update(0.0, [_estimate([35.0, 110.0])], camera=cam0)
-    tr2.update(1.0, [], camera=cam0)
+    tr2.add_frame(0.0, [_estimate([35.0, 110.0])], camera=cam0)
+    tr2.add_frame(1.0, [], camera=cam0)
     assert tr2.predict(1.0) == []
     with pytest.raises(ValueError, match="time"):
-        tr2.update(0.5, [])
+        tr2.add_frame(0.5, [])
 
 
 def test_a_track_out_of_view_is_dropped_once_it_no_longer_says_where_the_person_is():
@@ -241,16 +241,16 @@ def test_a_track_out_of_view_is_dropped_once_it_no_longer_says_where_the_person_
     for limit in (1.5, 100.0):
         tr = WorldTracker(WorldTrackerConfig(out_of_view_max_sigma=limit))
         for k in range(4):  # a walker crossing toward the car's side, seen from afar
-            tr.update(float(k), [_estimate([40.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
+            tr.add_frame(float(k), [_estimate([40.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
         for t in (4.0, 5.0, 6.0, 7.0, 8.0):
-            tr.update(t, [], camera=beside)
+            tr.add_frame(t, [], camera=beside)
         kept[limit] = tr.predict(8.0)
     assert kept[1.5] == [] and len(kept[100.0]) == 1
     tr = WorldTracker()  # walking toward the axis from beside the view: kept, however uncertain
     for k in range(4):
-        tr.update(float(k), [_estimate([45.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
+        tr.add_frame(float(k), [_estimate([45.0 - 1.2 * k, 101.0], 0.3)], camera=cam0)
     for t in (4.0, 5.0, 6.0):
-        tr.update(t, [], camera=beside)
+        tr.add_frame(t, [], camera=beside)
     (s,) = tr.predict(6.0)
     assert s.position[0] > 33.5 and math.sqrt(np.linalg.eigvalsh(s.position_covariance)[-1]) > 1.5
     assert math.sqrt(np.linalg.eigvalsh(kept[100.0][0].position_covariance)[-1]) > 1.5
@@ -268,8 +268,8 @@ def test_a_person_too_close_in_front_to_be_seen_whole_is_not_dropped_as_missed()
     near, far = [33.5, 101.0], [33.5, 80.0]
     tr = WorldTracker()
     for k in range(3):
-        tr.update(0.5 * k, [_estimate(near, 0.1), _estimate(far, 0.1)], camera=cam)
-    tr.update(5.0, [], camera=cam)  # neither seen for 4 s > keep_seconds
+        tr.add_frame(0.5 * k, [_estimate(near, 0.1), _estimate(far, 0.1)], camera=cam)
+    tr.add_frame(5.0, [], camera=cam)  # neither seen for 4 s > keep_seconds
     (kept,) = tr.predict(5.0)
     assert np.hypot(*(kept.position - near)) < 1.0
 
@@ -340,19 +340,19 @@ def test_case1_on_perceived_states_keeps_the_claims_and_reports_localisation(cas
 
 def test_perceived_controller_inputs_come_from_tracks_not_the_world():
     sc = load_drive_scenario("case-1")
-    sim = DriveSimulation(sc, seed=0, state="perceived")
+    sim = DriveEnvironment(sc, seed=0, state="perceived")
     obs = sim.observe()  # the frame at t = 0
     truth = sim.pedestrians()[0]
     assert obs.covariances is not None and obs.covariances.shape == (2, 4, 4)
     err = np.linalg.norm(obs.positions[:, None] - truth[None], axis=2).min(axis=1)
     assert np.all(err > 1e-6) and np.all(err < 1.5)  # estimated, not copied
-    blind = DriveSimulation(sc, seed=0, state="perceived", max_frames=0)
+    blind = DriveEnvironment(sc, seed=0, state="perceived", max_frames=0)
     assert len(blind.observe().positions) == 0  # nothing seen: nothing known
-    true = DriveSimulation(sc, seed=0, state="true").observe()
+    true = DriveEnvironment(sc, seed=0, state="true").observe()
     np.testing.assert_array_equal(true.positions, truth)
     assert true.covariances is None
     with pytest.raises(ValueError, match="state"):
-        DriveSimulation(sc, state="oracle")
+        DriveEnvironment(sc, state="oracle")
 
 
 # ------------------------------------------------------------------------------- recorded video

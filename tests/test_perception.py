@@ -584,7 +584,7 @@ def test_pipeline_cues_default_to_the_papers_and_are_checked(make_pipeline, look
     only = make_pipeline(_ScriptedBackend([[_walker(10)]]), cues=[Bad([float("nan")])])
     (tp,) = only(frame)
     assert math.isnan(tp.eye_contact) and math.isnan(tp.phone) and math.isnan(tp.cues["bad"])
-    (obs,) = only.observations([tp], 0.0)
+    (obs,) = only.sightings([tp], 0.0)
     assert obs.c_eye is None and obs.c_smartphone is None and obs.cue("bad") is None
 
 

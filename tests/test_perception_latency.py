@@ -12,7 +12,7 @@ import pytest
 
 from trustnav.campaigns.spec import PARAMS, SpecError, spec_from_dict
 from trustnav.cli import main
-from trustnav.sim.driving.episode import DriveSimulation, run_drive
+from trustnav.sim.driving.episode import DriveEnvironment, run_drive
 from trustnav.sim.driving.world import SensingSpec, load_drive_scenario
 
 
@@ -21,7 +21,7 @@ def _with_latency(name: str, latency: float):
     return replace(sc, sensing=replace(sc.sensing, perception_latency=latency))
 
 
-def _step(sim: DriveSimulation, command=(0.0, 0.0)):
+def _step(sim: DriveEnvironment, command=(0.0, 0.0)):
     obs = sim.observe()
     sim.advance(list(command))
     return obs
@@ -35,14 +35,14 @@ def test_latency_is_validated_with_a_clear_message(bad):
 
 def test_frames_reach_the_estimates_after_the_latency_stamped_with_their_capture_time():
     latency = 0.3
-    sim = DriveSimulation(_with_latency("case-1", latency), capture_rate=10.0)
+    sim = DriveEnvironment(_with_latency("case-1", latency), capture_rate=10.0)
     first_estimate = None
     for _ in range(30):  # 1.5 s at 20 Hz, car at rest
         obs = _step(sim)
         now = obs.time
         # delivered frames are exactly those captured at least `latency` ago, in capture order
         assert all(f.time <= now - latency + 1e-9 for f in sim.frames)
-        assert all(c.time > now - latency + 1e-9 for c in sim._in_flight)
+        assert all(c.time > now - latency + 1e-9 for c in sim.latency.in_flight)
         assert [f.index for f in sim.frames] == list(range(len(sim.frames)))
         assert [f.time for f in sim.frames] == pytest.approx([k / 10.0 for k in range(len(sim.frames))])
         if first_estimate is None and len(obs.positions):
@@ -52,17 +52,17 @@ def test_frames_reach_the_estimates_after_the_latency_stamped_with_their_capture
     # each report says when the controller got it: the first control step at or after capture + latency
     lag = np.array([f.known_at - f.time for f in sim.frames])
     assert np.all(lag >= latency - 1e-9) and np.all(lag < latency + sim.period)
-    assert sim._captured == len(sim.frames) + len(sim._in_flight)
+    assert sim._captured == len(sim.frames) + len(sim.latency)
 
 
 def test_no_latency_delivers_each_frame_when_captured():
-    sim = DriveSimulation(load_drive_scenario("case-1"), capture_rate=10.0)
+    sim = DriveEnvironment(load_drive_scenario("case-1"), capture_rate=10.0)
     obs = _step(sim)
-    assert len(obs.positions) == 2 and len(sim.frames) == 1 and not sim._in_flight
-    report = DriveSimulation(load_drive_scenario("case-1"), capture_rate=10.0).capture()
+    assert len(obs.positions) == 2 and len(sim.frames) == 1 and not len(sim.latency)
+    report = DriveEnvironment(load_drive_scenario("case-1"), capture_rate=10.0).capture()
     assert report is not None and report.index == 0
-    late = DriveSimulation(_with_latency("case-1", 0.2), capture_rate=10.0)
-    assert late.capture() is None and len(late._in_flight) == 1  # in flight, reported on delivery
+    late = DriveEnvironment(_with_latency("case-1", 0.2), capture_rate=10.0)
+    assert late.capture() is None and len(late.latency) == 1  # in flight, reported on delivery
 
 
 def test_a_late_frame_is_predicted_to_now_for_a_walking_pedestrian():
@@ -72,7 +72,7 @@ def test_a_late_frame_is_predicted_to_now_for_a_walking_pedestrian():
     for latency in (0.0, 0.5):
         sc = _with_latency("case-2", latency)
         sc = replace(sc, pedestrians=(replace(sc.pedestrians[0], velocity=(-1.4, 0.0)),))
-        sim = DriveSimulation(sc, capture_rate=10.0)
+        sim = DriveEnvironment(sc, capture_rate=10.0)
         err = []
         for _ in range(60):  # 3 s, car at rest, the walker crossing
             obs = _step(sim)

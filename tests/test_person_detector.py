@@ -253,10 +253,10 @@ def test_people_carried_between_fits_are_not_judged_twice():
     assert cue.judged == 2  # frames 0 and 3 only
     assert [round(o[0].eye_contact, 2) for o in outs] == [0.1, 0.1, 0.1, 0.2]  # carried: the last value
     tid = outs[0][0].track_id
-    assert PerceptionPipeline.observations(outs[1], 0.1) == []
-    assert PerceptionPipeline.observations(outs[1], 0.1, known={tid}) == []
-    assert len(PerceptionPipeline.observations(outs[1], 0.1, known=set())) == 1  # a track new to trust
-    assert len(PerceptionPipeline.observations(outs[3], 0.3, known={tid})) == 1
+    assert PerceptionPipeline.sightings(outs[1], 0.1) == []
+    assert PerceptionPipeline.sightings(outs[1], 0.1, known={tid}) == []
+    assert len(PerceptionPipeline.sightings(outs[1], 0.1, known=set())) == 1  # a track new to trust
+    assert len(PerceptionPipeline.sightings(outs[3], 0.3, known={tid})) == 1
 
 
 @pytest.mark.slow

@@ -117,8 +117,8 @@ def test_temporal_model_judges_facing_over_the_window():
         t = k / 10
         kp = both_hands(nose_drop=18.0) + rng.normal(0.0, 1.0, (17, 2))
         face = 1.0 if k == 30 else BACK  # the last frame alone looks frontal
-        back.append(model.update(1, t, kp, _conf(face)).phone)
-        front.append(model.update(2, t, kp, _conf()).phone)
+        back.append(model.add_pose(1, t, kp, _conf(face)).phone)
+        front.append(model.add_pose(2, t, kp, _conf()).phone)
     assert max(back[5:]) < 0.2
     assert min(front) > 0.7
 

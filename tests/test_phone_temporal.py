@@ -60,7 +60,7 @@ def _person(kp: np.ndarray) -> Person:
 def test_walker_reads_low_after_two_seconds_at_any_rate(fps):
     model = TemporalPhoneModel()
     times = np.arange(0.0, 4.0 + 1e-9, 1.0 / fps)
-    out = [model.update(7, t, walker(t)) for t in times]
+    out = [model.add_pose(7, t, walker(t)) for t in times]
     geometry = max(r.geometry for r in out)
     late = [r.phone for r, t in zip(out, times, strict=True) if t >= 2.0]
     assert geometry > 0.55  # one frame's arm geometry alone fires on this walker
@@ -73,7 +73,7 @@ def test_texter_reads_high(fps):
     rng = np.random.default_rng(fps)
     model = TemporalPhoneModel()
     times = np.arange(0.0, 4.0 + 1e-9, 1.0 / fps)
-    out = [model.update(3, t, texter(t, rng)) for t in times]
+    out = [model.add_pose(3, t, texter(t, rng)) for t in times]
     assert out[0].weight == 0.0 and out[0].phone == out[0].geometry  # first frame: geometry only
     assert min(r.phone for r in out) > 0.8
 
@@ -82,7 +82,7 @@ def test_confidence_grows_with_seconds_not_frames():
     for fps in (1, 10, 30):
         model = TemporalPhoneModel(window_s=2.0, max_weight=0.8)
         rng = np.random.default_rng(0)
-        res = [model.update(1, t, texter(t, rng)) for t in np.arange(0.0, 1.0 + 1e-9, 1.0 / fps)]
+        res = [model.add_pose(1, t, texter(t, rng)) for t in np.arange(0.0, 1.0 + 1e-9, 1.0 / fps)]
         assert res[-1].history_s == pytest.approx(1.0)
         assert res[-1].weight == pytest.approx(0.4)
 
@@ -91,18 +91,18 @@ def test_history_is_per_track_and_restarts():
     rng = np.random.default_rng(1)
     model = TemporalPhoneModel(reset_after_s=3.0)
     for t in np.arange(0.0, 3.0, 0.1):
-        model.update(1, t, texter(t, rng))
-        model.update(2, t, walker(t))
+        model.add_pose(1, t, texter(t, rng))
+        model.add_pose(2, t, walker(t))
     assert model.track_ids == [1, 2]
     # a new track starts with geometry only: nothing from tracks 1 or 2 leaks into it
-    new = model.update(3, 3.0, walker(3.0))
+    new = model.add_pose(3, 3.0, walker(3.0))
     assert new.weight == 0.0 and new.history_s == 0.0 and new.phone == new.geometry
     # track 1 unseen for longer than reset_after_s: dropped, and restarts from its next frame
-    later = model.update(2, 6.5, walker(6.5))
+    later = model.add_pose(2, 6.5, walker(6.5))
     assert 1 not in model.track_ids and later.history_s == 0.0
     # untracked people (-1) and frames without a time are judged alone
-    assert model.update(-1, 7.0, walker(7.0)).weight == 0.0
-    assert model.update(2, None, walker(7.0)).weight == 0.0
+    assert model.add_pose(-1, 7.0, walker(7.0)).weight == 0.0
+    assert model.add_pose(2, None, walker(7.0)).weight == 0.0
     model.reset()
     assert model.track_ids == []
 

@@ -150,12 +150,12 @@ def test_a_relaxed_plan_gives_up_room_to_the_pedestrian_not_the_road():
     (0.07 m past the room). The road's rows now stay hard in the relaxation and rank first among
     fallbacks: the car brakes on the road instead."""
     from trustnav.control import SolveStatus
-    from trustnav.sim.driving import DriveSimulation, drive, load_drive_scenario
-    from trustnav.sim.driving.compare import ConstantTrustWorld
+    from trustnav.sim.driving import DriveEnvironment, drive, load_drive_scenario
+    from trustnav.sim.driving.compare import ConstantTrustEnvironment
     from trustnav.sim.driving.episode import drive_metrics, make_sensor, prepare_scenario
 
     sc = prepare_scenario(load_drive_scenario(ROOT / "examples/scenarios/step-out.toml"), None, None)
-    world = ConstantTrustWorld(DriveSimulation(sc, seed=0, sensor=make_sensor("keypoints", None, None)), 1.0)
+    world = ConstantTrustEnvironment(DriveEnvironment(sc, seed=0, sensor=make_sensor("keypoints", None, None)), 1.0)
     r = drive(world, "keypoints")
     m = drive_metrics(r)
     assert any(s is SolveStatus.RELAXED for s in r.statuses)  # the situation the test is about

@@ -16,8 +16,8 @@ from trustnav.trust import (
     PAPER_TRUST,
     CueTrait,
     EyeContact,
-    Observation,
     PoseFluctuation,
+    Sighting,
     SmartphoneUse,
     TraitSet,
     TraitStep,
@@ -38,7 +38,7 @@ from trustnav.trust import (
 )
 
 
-def _reference(observations: list[Observation], p: TrustParams) -> list[tuple[float, ...]]:
+def _reference(observations: list[Sighting], p: TrustParams) -> list[tuple[float, ...]]:
     """The estimator as it was written before traits were parts, from the function-level formulas:
     (s1, s2, s3, S, tau, C_fluc) after each observation (one track, no forgetting)."""
     out = []
@@ -73,7 +73,7 @@ def _reference(observations: list[Observation], p: TrustParams) -> list[tuple[fl
     return out
 
 
-def _random_observations(seed: int, n: int = 80) -> list[Observation]:
+def _random_observations(seed: int, n: int = 80) -> list[Sighting]:
     rng = np.random.default_rng(seed)
     obs = []
     for k in range(n):
@@ -85,7 +85,7 @@ def _random_observations(seed: int, n: int = 80) -> list[Observation]:
             kp = np.column_stack([rng.uniform(x0, x0 + 40, 17), rng.uniform(y0, y0 + 100, 17)])
             kp[rng.integers(0, 17, rng.integers(0, 4))] = np.nan
             box = np.array([x0 - 1, y0 - 1, x0 + 41, y0 + 101])
-        obs.append(Observation(5, 0.1 * k, c_smartphone=c1, c_eye=c2, keypoints=kp, bbox=box))
+        obs.append(Sighting(5, 0.1 * k, c_smartphone=c1, c_eye=c2, keypoints=kp, bbox=box))
     return obs
 
 
@@ -97,7 +97,7 @@ def test_default_traits_are_bit_identical_to_the_paper_formulas(params, seed):
     for est in (TrustEstimator(params, keep_time=10.0), TrustEstimator(params, 10.0, traits=paper_traits(params))):
         got = []
         for o in observations:
-            st = est.observe(o)
+            st = est.add_sighting(o)
             got.append((st.smartphone, st.eye, st.pose, st.score, st.trust, st.fluctuation))
         # exact equality (NaN in the same places): same floating-point operations as before
         assert np.array_equal(np.array(got), np.array(ref), equal_nan=True)
@@ -146,13 +146,13 @@ class Stillness:
 
 def test_user_defined_traits_work_without_touching_trustnav():
     est = TrustEstimator(traits=[*PAPER_TRAITS, RedLightCrossing()])
-    st = est.observe(Observation(1, 0.0, c_smartphone=0.0, c_eye=1.0))
+    st = est.add_sighting(Sighting(1, 0.0, c_smartphone=0.0, c_eye=1.0))
     # red_light not seen yet: not available, its weight shared out over the paper's three
     assert math.isnan(st.value("red_light"))
     assert st.score == pytest.approx((0.4 * 1.0 + 0.5 * 1.0 + 0.1 * 0.5) / 1.0)
-    st = est.observe(Observation(1, 1.0, c_smartphone=0.0, c_eye=1.0, cues={"red_light": 0.9}))
+    st = est.add_sighting(Sighting(1, 1.0, c_smartphone=0.0, c_eye=1.0, cues={"red_light": 0.9}))
     assert st.value("red_light") == pytest.approx(0.1)
-    st = est.observe(Observation(1, 2.0, cues={"red_light": 0.0}))
+    st = est.add_sighting(Sighting(1, 2.0, cues={"red_light": 0.0}))
     assert st.value("red_light") == pytest.approx(0.1)  # never forgotten
     expected = (0.4 * st.smartphone + 0.5 * st.eye + 0.1 * st.pose + 0.5 * 0.1) / 1.5
     assert st.score == pytest.approx(expected)
@@ -161,8 +161,8 @@ def test_user_defined_traits_work_without_touching_trustnav():
     # a protocol-only trait, alone: lin_comb of one trait is that trait
     solo = TrustEstimator(traits=TraitSet((Stillness(),)))
     kp = np.column_stack([np.linspace(0, 10, 17), np.linspace(0, 20, 17)])
-    solo.observe(Observation(2, 0.0, keypoints=kp, bbox=[0, 0, 10, 20]))
-    st2 = solo.observe(Observation(2, 1.0))
+    solo.add_sighting(Sighting(2, 0.0, keypoints=kp, bbox=[0, 0, 10, 20]))
+    st2 = solo.add_sighting(Sighting(2, 1.0))
     assert st2.score == pytest.approx(0.5) and math.isnan(st2.smartphone) and st2.relative_pose is None
     assert st2.trust == pytest.approx(0.55 * 1.0 + 0.08 * 0.5)  # agg_trust from PAPER_TRUST
 
@@ -194,10 +194,10 @@ def test_trait_sets_are_validated_with_clear_messages(traits, message):
         (lambda: SmartphoneUse(nu=1.5), r"trait 'smartphone' nu must lie in \[0, 1\]"),
         (lambda: EyeContact(nu0=0.0), r"trait 'eye_contact' nu0 must lie in \(0, 1\]"),
         (lambda: PoseFluctuation(sensitivity=0.0), "sensitivity .* must be positive"),
-        (lambda: Observation(1, 0.0, cues={"red_light": 1.5}), r"cue 'red_light' must be a confidence in \[0, 1\]"),
-        (lambda: Observation(1, 0.0, cues={"smartphone": 0.5}), "carried by Observation.c_smartphone"),
-        (lambda: Observation(1, 0.0, cues={3: 0.5}), "cue names must be non-empty strings"),
-        (lambda: Observation(1, 0.0, cues=[0.5]), "cues must be a mapping"),
+        (lambda: Sighting(1, 0.0, cues={"red_light": 1.5}), r"cue 'red_light' must be a confidence in \[0, 1\]"),
+        (lambda: Sighting(1, 0.0, cues={"smartphone": 0.5}), "carried by Sighting.c_smartphone"),
+        (lambda: Sighting(1, 0.0, cues={3: 0.5}), "cue names must be non-empty strings"),
+        (lambda: Sighting(1, 0.0, cues=[0.5]), "cues must be a mapping"),
     ],
 )
 def test_trait_and_cue_inputs_are_validated(make, message):
@@ -219,16 +219,16 @@ def test_a_trait_giving_a_bad_value_is_named_and_leaves_the_track_as_it_was():
             return 2.0 * c  # out of [0, 1] for c > 0.5
 
     est = TrustEstimator(traits=[*PAPER_TRAITS, Broken()])
-    st = est.observe(Observation(1, 0.0, c_eye=0.5, cues={"x": 0.2}))
+    st = est.add_sighting(Sighting(1, 0.0, c_eye=0.5, cues={"x": 0.2}))
     before = (dict(st.values), st.score, st.trust, st.last_seen, st.observations)
     with pytest.raises(ValueError, match=r"trait .broken.: update gave 1.8; a trait value must be a number in"):
-        est.observe(Observation(1, 1.0, c_eye=1.0, cues={"x": 0.9}))
+        est.add_sighting(Sighting(1, 1.0, c_eye=1.0, cues={"x": 0.9}))
     assert (dict(st.values), st.score, st.trust, st.last_seen, st.observations) == before
 
 
 def test_observation_cues_are_read_only_and_reach_traits_by_name():
     cues = {"red_light": 0.25}
-    o = Observation(1, 0.0, c_smartphone=0.5, cues=cues)
+    o = Sighting(1, 0.0, c_smartphone=0.5, cues=cues)
     cues["red_light"] = 0.9  # the observation keeps its own copy
     assert (o.cue("red_light"), o.cue("smartphone"), o.cue("eye_contact"), o.cue("other")) == (0.25, 0.5, None, None)
     with pytest.raises(TypeError):

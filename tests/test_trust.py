@@ -15,7 +15,7 @@ from trustnav.trust import (
     PAPER_GAMMA_NUMERICAL,
     PAPER_TRUST,
     GammaParams,
-    Observation,
+    Sighting,
     TrustEstimator,
     TrustParams,
     eye_trait_init,
@@ -206,15 +206,15 @@ def test_estimator_initialises_with_zero_formulas_and_updates_only_on_observatio
     p = PAPER_TRUST
     est = TrustEstimator(p, keep_time=1.0)
     kp, box = _pose()
-    st0 = est.observe(Observation(7, 0.0, c_smartphone=0.1, c_eye=0.8, keypoints=kp, bbox=box))
+    st0 = est.add_sighting(Sighting(7, 0.0, c_smartphone=0.1, c_eye=0.8, keypoints=kp, bbox=box))
     s0 = 0.4 * 0.9 + 0.5 * 0.8 + 0.1 * 0.5
     assert st0.score == pytest.approx(s0)
     assert st0.trust == pytest.approx(0.55 * s0)
     # a frame in which track 7 is not seen changes nothing for it
-    est.update([Observation(8, 0.1, c_smartphone=0.9, c_eye=0.0)], time=0.1)
+    est.add_frame([Sighting(8, 0.1, c_smartphone=0.9, c_eye=0.0)], time=0.1)
     assert est.trust(7) == pytest.approx(0.55 * s0)
     kp2, box2 = _pose(shift=3.0)  # the whole person moves: pose relative to the box is unchanged
-    st1 = est.observe(Observation(7, 0.2, c_smartphone=0.1, c_eye=0.8, keypoints=kp2, bbox=box2))
+    st1 = est.add_sighting(Sighting(7, 0.2, c_smartphone=0.1, c_eye=0.8, keypoints=kp2, bbox=box2))
     assert st1.fluctuation == 1.0
     assert st1.pose == pytest.approx(0.8 * 0.5 + 0.2 * 1.0)
     s1 = 0.4 * (0.6 * 0.9 + 0.4 * 0.9) + 0.5 * min(1.0, 0.8 + 0.1 * 0.8) + 0.1 * st1.pose
@@ -225,21 +225,21 @@ def test_estimator_initialises_with_zero_formulas_and_updates_only_on_observatio
 
 def test_estimator_handles_missing_traits_and_forgets_lost_tracks():
     est = TrustEstimator(PAPER_TRUST, keep_time=0.5)
-    st0 = est.observe(Observation(1, 0.0, c_eye=0.6))  # phone model gave nothing yet
+    st0 = est.add_sighting(Sighting(1, 0.0, c_eye=0.6))  # phone model gave nothing yet
     assert math.isnan(st0.smartphone)
     assert st0.score == pytest.approx((0.5 * 0.6 + 0.1 * 0.5) / 0.6)
-    st1 = est.observe(Observation(1, 0.1, c_smartphone=0.0))  # first phone reading uses the (0) formula
+    st1 = est.add_sighting(Sighting(1, 0.1, c_smartphone=0.0))  # first phone reading uses the (0) formula
     assert st1.smartphone == pytest.approx(1.0)
     assert st1.eye == pytest.approx(0.6)  # not observed this time: held
-    est.update([], time=0.55)
+    est.add_frame([], time=0.55)
     assert 1 in est.tracks
-    est.update([], time=0.7)
+    est.add_frame([], time=0.7)
     assert 1 not in est.tracks
     with pytest.raises(ValueError, match="keypoints and bbox must be given together"):
-        Observation(2, 0.0, keypoints=np.zeros((17, 2)))
-    est.observe(Observation(3, 1.0))
+        Sighting(2, 0.0, keypoints=np.zeros((17, 2)))
+    est.add_sighting(Sighting(3, 1.0))
     with pytest.raises(ValueError, match="older than its last one"):
-        est.observe(Observation(3, 0.5))
+        est.add_sighting(Sighting(3, 0.5))
 
 
 # ------------------------------------------------------------------ trust in seconds (issue #19)
@@ -247,7 +247,7 @@ def test_estimator_handles_missing_traits_and_forgets_lost_tracks():
 
 def _watch(params, fps: float, seconds: float, c_sm: float, c_eye: float, seed: int = 0) -> dict[float, float]:
     """Trust of one person showing the same behaviour for ``seconds`` at ``fps``: {time: trust}."""
-    from trustnav.trust import Observation, TrustEstimator
+    from trustnav.trust import Sighting, TrustEstimator
 
     rng = np.random.default_rng(seed)
     base = np.array([[50.0 + 20.0 * np.sin(i), 10.0 + 5.0 * i] for i in range(17)])
@@ -256,7 +256,7 @@ def _watch(params, fps: float, seconds: float, c_sm: float, c_eye: float, seed: 
     for k in range(round(seconds * fps) + 1):
         t = k / fps
         kp = base + rng.normal(0.0, 0.4, base.shape)  # a person standing: keypoint jitter only
-        est.observe(Observation(track_id=0, time=t, c_smartphone=c_sm, c_eye=c_eye, keypoints=kp,
+        est.add_sighting(Sighting(track_id=0, time=t, c_smartphone=c_sm, c_eye=c_eye, keypoints=kp,
                                 bbox=np.array([0.0, 0.0, 100.0, 100.0])))  # fmt: skip
         out[round(t, 6)] = float(est.trust(0))
     return out

@@ -2,7 +2,7 @@
 
 Optional extra ``trustnav[carla]`` (the ``carla`` 0.9.16 client); ``trustnav drive case-1|case-2
 --world carla [--host H --port P --timeout S]``. The CARLA server is one more
-:class:`trustnav.sim.driving.episode.DriveWorld` behind the drive loop of ``trustnav drive``.
+:class:`trustnav.sim.driving.episode.World` behind the drive loop of ``trustnav drive``.
 
 * :mod:`.frames`: scenario <-> CARLA coordinates (CARLA is left-handed), camera buffer decoding;
 * :mod:`.control`: (steer rad, accel m/s^2) -> ``VehicleControl`` steer / throttle / brake;

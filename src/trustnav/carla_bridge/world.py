@@ -1,4 +1,4 @@
-"""A CARLA server as a :class:`trustnav.sim.driving.episode.DriveWorld`, and one drive on it.
+"""A CARLA server as a :class:`trustnav.sim.driving.episode.World`, and one drive on it.
 
 :class:`CarlaWorld` reads the ego and the walkers from CARLA (converted to the scenario's
 coordinates by the session's :class:`MapFrame`), applies the controller's command as a
@@ -9,7 +9,7 @@ tick per control period. What the camera sees goes through the physical frame
 walkers, with their yaws) project as CARLA's camera does: keypoint sensing projects those bodies,
 render sensing runs perception on CARLA's image and associates its tracks with the walkers through
 the bodies' boxes. :func:`run_carla_drive_episode` puts it under a
-:class:`~trustnav.sim.driving.episode.DriveSimulation`, the episode engine's world of every drive
+:class:`~trustnav.sim.driving.episode.DriveEnvironment`, the episode engine's world of every drive
 (:mod:`trustnav.sim.engine`), and runs :func:`trustnav.sim.driving.episode.drive` on it: the same
 runner, MPC, trust memory, record and metrics as ``trustnav drive``.
 
@@ -36,7 +36,7 @@ from trustnav.carla_bridge.posing import pose_walker
 from trustnav.carla_bridge.session import CarlaError, CarlaOptions, CarlaSession
 from trustnav.geometry.camera import CameraPose, CameraSpec
 from trustnav.sim.driving import body
-from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive, make_sensor, prepare_scenario
+from trustnav.sim.driving.episode import DriveEnvironment, DriveResult, drive, make_sensor, prepare_scenario
 from trustnav.sim.driving.world import DriveScenario
 
 __all__ = ["CarlaCamera", "CarlaWorld", "carla_scenario", "run_carla_drive_episode"]
@@ -237,7 +237,7 @@ def run_carla_drive_episode(
             on_session(session)
         world = CarlaWorld(session, sc.camera)
         sensor = make_sensor(sensing, CarlaCamera(world) if sensing == "render" else None, pipeline)
-        sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, world=world, state=state)
+        sim = DriveEnvironment(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, world=world, state=state)
         return drive(sim, sensing, progress=progress)
 
 

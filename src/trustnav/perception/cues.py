@@ -1,8 +1,8 @@
 """Cue extractors: frame + the people found in it -> one confidence per person for one trait cue.
 
 A cue feeds a trait of :mod:`trustnav.trust.parts` by name: the pipeline puts ``smartphone`` into
-``Observation.c_smartphone``, ``eye_contact`` into ``Observation.c_eye`` and any other cue into
-``Observation.cues``. The defaults are the paper's two image cues, eye contact (LOOKING, C_eye of
+``Sighting.c_smartphone``, ``eye_contact`` into ``Sighting.c_eye`` and any other cue into
+``Sighting.cues``. The defaults are the paper's two image cues, eye contact (LOOKING, C_eye of
 `eye_score`) and smartphone use (C_sm of `smato_score`); pose fluctuation (`pose_conf`) needs no
 extractor, it reads the keypoints. A new cue (e.g. ``head_turned``) is any object with a ``name``
 that is callable as ``cue(frame, people) -> confidences``; NaN marks a person it cannot judge.
@@ -24,7 +24,7 @@ from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact, Fa
 from trustnav.perception.looking import LookingModel, normalise_keypoints
 from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier, TemporalPhoneModel, fuse_crop
 from trustnav.perception.types import Person
-from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE
+from trustnav.trust.sighting import EYE_CONTACT, SMARTPHONE
 
 __all__ = [
     "CueExtractor",
@@ -190,7 +190,7 @@ class PhoneUseCue:
     def __post_init__(self) -> None:
         if not callable(self.classifier):
             raise ValueError(f"phone must be a PhoneClassifier (callable), got {type(self.classifier).__name__}")
-        if self.temporal is not None and not hasattr(self.temporal, "update"):
+        if self.temporal is not None and not hasattr(self.temporal, "add_pose"):
             raise ValueError(f"temporal must be a TemporalPhoneModel, got {type(self.temporal).__name__}")
         if self.crop is not None and not callable(self.crop):
             raise ValueError(f"crop must be a PhoneClassifier (callable), got {type(self.crop).__name__}")
@@ -207,7 +207,7 @@ class PhoneUseCue:
             heads = [None if math.isnan(f.pitch) else (f.pitch, f.confidence) for f in self.face(frame, people)]
         if self.temporal is not None and track_ids is not None:
             out = [
-                self.temporal.update(tid, time, p.keypoints, p.confidences, face=h).phone
+                self.temporal.add_pose(tid, time, p.keypoints, p.confidences, face=h).phone
                 for tid, p, h in zip(track_ids, people, heads, strict=True)
             ]
         elif self.face is not None and isinstance(self.classifier, PoseGeometryPhoneClassifier):

@@ -24,7 +24,7 @@ from trustnav.geometry.camera import CameraPose
 from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig
 from trustnav.perception.types import Person
 from trustnav.perception.world_tracking import TrackState, WorldTracker, WorldTrackerConfig
-from trustnav.trust import PAPER_TRUST, Observation, TrustEstimator, TrustParams
+from trustnav.trust import PAPER_TRUST, Sighting, TrustEstimator, TrustParams
 
 __all__ = ["PedestrianEstimates", "PedestrianEstimator", "SeenPerson"]
 
@@ -69,7 +69,7 @@ class PedestrianEstimator:
         self.tracker = tracker if isinstance(tracker, WorldTracker) else WorldTracker(tracker)
         self.trust = trust if isinstance(trust, TrustEstimator) else TrustEstimator(trust, keep_time=math.inf)
 
-    def update(
+    def add_frame(
         self,
         time: float,
         camera: CameraPose,
@@ -88,13 +88,13 @@ class PedestrianEstimator:
         estimates = [self.localiser.locate(p.person, camera, ground) for p in people]
         if m is not None:
             estimates = [None if e is None else e.mapped(m) for e in estimates]
-        ids = self.tracker.update(time, estimates, [p.person.bbox for p in people], camera, m)
+        ids = self.tracker.add_frame(time, estimates, [p.person.bbox for p in people], camera, m)
         obs = []
         for p, tid in zip(people, ids, strict=True):
             if tid is None:
                 continue
             obs.append(
-                Observation(
+                Sighting(
                     track_id=tid,
                     time=time,
                     c_smartphone=None if math.isnan(p.phone) else p.phone,
@@ -103,7 +103,7 @@ class PedestrianEstimator:
                     bbox=p.person.bbox,
                 )
             )
-        self.trust.update(obs, time=time)
+        self.trust.add_frame(obs, time=time)
         live = {t.track_id for t in self.tracker.tracks}
         for tid in [t for t in self.trust.tracks if t not in live]:
             self.trust.forget(tid)  # the world tracker dropped it: its trust goes with it

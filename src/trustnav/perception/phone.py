@@ -346,7 +346,7 @@ class TemporalPhoneModel:
         low = _ramp(float(wrists[:, 1].min()), 0.3, 0.5)  # both hands below the chest: a hand at the ear is no stride
         return _ramp(float(np.abs(off).min()), *self.split) * low
 
-    def update(
+    def add_pose(
         self,
         track_id: int | None,
         time: float | None,

@@ -3,7 +3,7 @@
 :class:`PerceptionPipeline` runs one frame: pose backend, tracker and the trait cues, a list of
 cue extractors (:mod:`~trustnav.perception.cues`; by default eye contact, LOOKING on the 17
 keypoints and their occlusion-aware confidences, and smartphone use); :meth:`observations` turns
-the result into :class:`~trustnav.trust.observation.Observation` s stamped with the frame's time,
+the result into :class:`~trustnav.trust.sighting.Sighting` s stamped with the frame's time,
 so the trust estimator updates a track when, and only when, that person is seen. :func:`estimate`
 runs a whole sequence, one bad frame never stopping it.
 """
@@ -27,7 +27,7 @@ from trustnav.perception.phone import PhoneClassifier
 from trustnav.perception.tracking import PersonTracker
 from trustnav.perception.types import Person, PoseBackend, check_frame
 from trustnav.trust.estimator import TrustEstimator
-from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
+from trustnav.trust.sighting import EYE_CONTACT, SMARTPHONE, Sighting
 
 __all__ = ["FrameResult", "PerceptionPipeline", "TrackedPerson", "estimate"]
 
@@ -80,7 +80,7 @@ class PerceptionPipeline:
     ) -> None:
         if not callable(backend):
             raise ValueError(f"backend must be a pose backend (callable on a frame), got {type(backend).__name__}")
-        if not hasattr(tracker, "update"):
+        if not hasattr(tracker, "add_frame"):
             raise ValueError(f"tracker must be a PersonTracker, got {type(tracker).__name__}")
         if cues is None:
             if not hasattr(eye_model, "predict"):
@@ -103,7 +103,7 @@ class PerceptionPipeline:
         t0 = _time.perf_counter()
         people = self.backend(frame)
         t1 = _time.perf_counter()
-        ids = self.tracker.update(people)
+        ids = self.tracker.add_frame(people)
         t2 = _time.perf_counter()
         values = self._cue_values(frame, people, ids, time)
         t3 = _time.perf_counter()
@@ -146,16 +146,14 @@ class PerceptionPipeline:
         return values
 
     @staticmethod
-    def observations(
-        people: Iterable[TrackedPerson], time: float, known: Container[int] | None = None
-    ) -> list[Observation]:
+    def sightings(people: Iterable[TrackedPerson], time: float, known: Container[int] | None = None) -> list[Sighting]:
         """One trust observation per tracked person (cues of `smato_score`, `eye_score` and any
         other trait; keypoints and box for `pose_conf`). A NaN cue is left out (missing). A person
         whose keypoints the real-time backend carried (``extra["carried"]``) was not judged on this
         frame: no observation (the same evidence is not counted twice), unless its track is not
         among ``known`` (the tracks trust already has; the tracker gave it a new ID)."""
         return [
-            Observation(
+            Sighting(
                 track_id=tp.track_id,
                 time=time,
                 c_smartphone=_given(tp.phone),
@@ -231,7 +229,7 @@ def estimate(
                 # a person the real-time backend only carried by its velocity was not measured on
                 # this frame: reported, but no evidence for trust
                 measured = [tp for tp in result.people if not tp.person.extra.get("predicted")]
-                estimator.update(pipeline.observations(measured, t, known=estimator.tracks), time=t)
+                estimator.add_frame(pipeline.sightings(measured, t, known=estimator.tracks), time=t)
                 result.records = [_record(item.name, tp, estimator, sequence) for tp in result.people]
                 result.timing = dict(pipeline.last_timing)
             except Exception as exc:  # one bad frame never stops the sequence

@@ -80,7 +80,7 @@ class PersonTracker:
         else:
             self._tracker = ByteTrackTracker(track_activation_threshold=c.high_confidence, **common)
 
-    def update(self, people: list[Person]) -> list[int]:
+    def add_frame(self, people: list[Person]) -> list[int]:
         """Track ID per person (same order); -1 for a person the tracker did not take on."""
         if not people:
             self._tracker.update(self._sv.Detections.empty())

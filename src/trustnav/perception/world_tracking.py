@@ -212,7 +212,7 @@ def correlated_error_factor(dt: float, correlation_s: float) -> float:
 
 
 class WorldTracker:
-    """Follows the people of successive frames on the ground (call :meth:`update` once per frame,
+    """Follows the people of successive frames on the ground (call :meth:`add_frame` once per frame,
     in time order; :meth:`predict` at any later time)."""
 
     def __init__(self, config: WorldTrackerConfig | None = None) -> None:
@@ -228,7 +228,7 @@ class WorldTracker:
         means, covs, probs = _mix(t, time - t.time, self.config)
         return _combine(means, covs, probs)
 
-    def update(
+    def add_frame(
         self,
         time: float,
         estimates: list[GroundEstimate | None],

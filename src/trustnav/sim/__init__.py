@@ -1,7 +1,7 @@
 """Worlds and scenarios: the paper's numerical scenarios (Section III) and the driving world of
 Section IV (Cases I and II, :mod:`trustnav.sim.driving`)."""
 
-from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive_metrics, run_drive
+from trustnav.sim.driving.episode import DriveEnvironment, DriveResult, drive_metrics, run_drive
 from trustnav.sim.driving.world import DRIVE_SCENARIOS, DriveScenario, load_drive_scenario
 from trustnav.sim.paper import (
     SCENARIOS,
@@ -18,9 +18,9 @@ from trustnav.sim.paper import (
 __all__ = [
     "DRIVE_SCENARIOS",
     "SCENARIOS",
+    "DriveEnvironment",
     "DriveResult",
     "DriveScenario",
-    "DriveSimulation",
     "Episode",
     "PaperScenario",
     "Pedestrian",

@@ -1,12 +1,15 @@
-"""One episode engine: a :class:`World` protocol, a :class:`Controller` protocol and one runner.
+"""One episode engine: an :class:`Environment` protocol, a :class:`Controller` protocol and one runner.
 
 Every closed-loop episode of trustnav (the paper's scenarios, random worlds, the drive on
-trustnav's own world or on CARLA, the Gymnasium environment) is a world stepped by a controller
-through :class:`Rollout`; :func:`run` is the loop. A world keeps its own rates: the runner calls
-``observe`` once per control period (``world.period`` seconds; a world with a camera captures a
-frame there when one is due), the controller decides, and ``advance(command, period)`` runs the
-plant (its own sub-steps, actuation latency, moving pedestrians). ``record()`` is the instant the
-result keeps, ``done()`` the termination reason.
+trustnav's own world or on CARLA, the Gymnasium environment) is an environment stepped by a
+controller through :class:`Rollout`; :func:`run` is the loop. An environment is what the runner
+steps: it returns the controller's :class:`Observation` and runs the plant; the drive's is a
+physical world (``trustnav.sim.driving.episode.World``: trustnav's own or CARLA) seen through the
+car's camera and perception. An environment keeps its own rates: the runner calls ``observe`` once
+per control period (``environment.period`` seconds; one with a camera captures a frame there when
+one is due), the controller decides, and ``advance(command, period)`` runs the plant (its own
+sub-steps, actuation latency, moving pedestrians). ``record()`` is the instant the result keeps,
+``done()`` the termination reason.
 
 :class:`EpisodeResult` is the one result type: per instant times, ego states, pedestrian
 positions and trusts; per control step the controller's statistics; the termination reason;
@@ -33,6 +36,7 @@ __all__ = [
     "STEP_MS_EDGES",
     "Controller",
     "Decision",
+    "Environment",
     "EpisodeResult",
     "FunctionController",
     "MpcPolicy",
@@ -40,7 +44,6 @@ __all__ = [
     "Rollout",
     "Sample",
     "StepStats",
-    "World",
     "make_mpc",
     "make_solver",
     "run",
@@ -81,9 +84,10 @@ RECORD_FIELDS = (
 
 @dataclass(frozen=True)
 class Observation:
-    """What a controller may use at ``time``: the ego state and the pedestrians known to it
-    (positions and velocities (M, 2), trusts (M,)), as the world's sensing gives them; with
-    estimated states, ``covariances`` (M, 4, 4) of each one's (x, y, v_x, v_y) (None: exact)."""
+    """The controller's input at ``time``: the ego state and the pedestrians known to it
+    (positions and velocities (M, 2), trusts (M,)), as the environment's sensing gives them; with
+    estimated states, ``covariances`` (M, 4, 4) of each one's (x, y, v_x, v_y) (None: exact).
+    (What perception saw of one track at one instant is a ``trustnav.trust.Sighting``.)"""
 
     time: float
     ego: NDArray[np.float64]
@@ -128,14 +132,15 @@ class Decision:
 
 
 @runtime_checkable
-class World(Protocol):
-    """A world the runner can step. ``period``: the control period (s); ``name``: a short tag."""
+class Environment(Protocol):
+    """What the runner steps: the controller's observations, the plant, the records. ``period``:
+    the control period (s); ``name``: a short tag ("paper", "sim", "carla", ...)."""
 
     name: str
     period: float
 
     def reset(self, seed: int | None = None) -> None:
-        """Back to t = 0; randomness from ``seed`` (None: the world's own seed)."""
+        """Back to t = 0; randomness from ``seed`` (None: the environment's own seed)."""
         ...
 
     def observe(self) -> Observation:
@@ -143,7 +148,7 @@ class World(Protocol):
         ...
 
     def advance(self, command: ArrayLike, duration: float) -> Any:
-        """Apply ``command`` and run the world ``duration`` seconds."""
+        """Apply ``command`` and run the plant ``duration`` seconds."""
         ...
 
     def done(self) -> str | None:
@@ -157,7 +162,7 @@ class World(Protocol):
 
 @runtime_checkable
 class Controller(Protocol):
-    """Anything that maps an observation to a decision."""
+    """Anything that maps an observation (the controller's input) to a decision."""
 
     def step(self, observation: Observation) -> Decision: ...
 
@@ -248,12 +253,13 @@ def step_time_fields(ms: ArrayLike) -> dict[str, Any]:
 
 @dataclass
 class EpisodeResult:
-    """One closed-loop episode. Per instant (T+1): ``times``, ``ego``, ``pedestrians`` (T+1, N, 2),
-    ``trusts`` (T+1, N); per control step (T): ``stats`` and the step's wall / thread CPU time (s);
-    ``reason`` why it ended; ``outcome``: measurements the world made itself (e.g. the closest
-    approach between control steps), which take precedence in :meth:`to_record`."""
+    """One closed-loop episode of the environment named ``environment``. Per instant (T+1):
+    ``times``, ``ego``, ``pedestrians`` (T+1, N, 2), ``trusts`` (T+1, N); per control step (T):
+    ``stats`` and the step's wall / thread CPU time (s); ``reason`` why it ended; ``outcome``:
+    measurements the environment made itself (e.g. the closest approach between control steps),
+    which take precedence in :meth:`to_record`."""
 
-    world: str
+    environment: str
     times: NDArray[np.float64]
     ego: NDArray[np.float64]
     pedestrians: NDArray[np.float64]
@@ -296,7 +302,7 @@ class EpisodeResult:
         return [s.plan for s in self.stats]
 
     def ped_min_distance(self) -> list[float | None]:
-        """Closest approach per pedestrian: the world's own measure, else over the instants."""
+        """Closest approach per pedestrian: the environment's own measure, else over the instants."""
         if "ped_min_distance" in self.outcome:
             return list(self.outcome["ped_min_distance"])
         d = self.distances
@@ -350,34 +356,36 @@ class EpisodeResult:
 
 
 class Rollout:
-    """An episode in progress on ``world``: the runner's bookkeeping, also driven step by step from
-    outside (the Gymnasium environment). ``horizon`` and ``safety_radius`` label the result."""
+    """An episode in progress on ``environment``: the runner's bookkeeping, also driven step by step
+    from outside (the Gymnasium environment). ``horizon`` and ``safety_radius`` label the result."""
 
-    def __init__(self, world: World, horizon: int | None = None, safety_radius: float | None = None) -> None:
-        self.world = world
+    def __init__(
+        self, environment: Environment, horizon: int | None = None, safety_radius: float | None = None
+    ) -> None:
+        self.environment = environment
         self.horizon = horizon
         self.safety_radius = safety_radius
-        self.samples: list[Sample] = [world.record()]
+        self.samples: list[Sample] = [environment.record()]
         self.stats: list[StepStats] = []
         self.wall: list[float] = []
         self.cpu: list[float] = []
 
     def observe(self) -> Observation:
-        return self.world.observe()
+        return self.environment.observe()
 
     def apply(self, decision: Decision, wall: float = math.nan, cpu: float = math.nan) -> None:
-        """Run the world one control period under ``decision`` and record the new instant (a
-        command that is not a finite 1-D vector of the world's input size is refused by name)."""
+        """Run the environment one control period under ``decision`` and record the new instant (a
+        command that is not a finite 1-D vector of the environment's input size is refused by name)."""
         command = self._checked(decision.control)
         self.stats.append(decision.stats)
         self.wall.append(wall)
         self.cpu.append(cpu)
-        self.world.advance(command, self.world.period)
-        self.samples.append(self.world.record())
+        self.environment.advance(command, self.environment.period)
+        self.samples.append(self.environment.record())
 
     def _checked(self, control: Any) -> NDArray[np.float64]:
-        size = getattr(self.world, "command_size", None)
-        if size is None and self.stats:  # the world does not say: the first command's size holds
+        size = getattr(self.environment, "command_size", None)
+        if size is None and self.stats:  # the environment does not say: the first command's size holds
             size = self._size
         try:
             command = np.asarray(control, dtype=float)
@@ -385,20 +393,21 @@ class Rollout:
             raise ValueError(f"controller command must be a vector of numbers, got {control!r}") from exc
         if command.ndim != 1 or command.size == 0 or (size is not None and command.size != size):
             want = f"{size} numbers" if size is not None else "a non-empty 1-D vector"
-            raise ValueError(f"controller command must be {want} for world {self.world.name!r}, got {control!r}")
+            name = self.environment.name
+            raise ValueError(f"controller command must be {want} for environment {name!r}, got {control!r}")
         if not np.isfinite(command).all():
             raise ValueError(f"controller command must be finite, got {command.tolist()!r} at step {len(self.stats)}")
         self._size = command.size
         return command
 
     def done(self) -> str | None:
-        return self.world.done()
+        return self.environment.done()
 
     def result(self, reason: str | None = None) -> EpisodeResult:
         s = self.samples
-        outcome = getattr(self.world, "outcome", None)
+        outcome = getattr(self.environment, "outcome", None)
         return EpisodeResult(
-            world=self.world.name,
+            environment=self.environment.name,
             times=np.array([x.time for x in s], dtype=float),
             ego=np.array([x.ego for x in s], dtype=float),
             pedestrians=np.array([x.pedestrians for x in s], dtype=float),
@@ -414,22 +423,22 @@ class Rollout:
 
 
 def run(
-    world: World,
+    environment: Environment,
     controller: Controller,
     *,
     seed: int | None = None,
     max_steps: int | None = None,
     on_step: Callable[[int, Observation, Decision], None] | None = None,
 ) -> EpisodeResult:
-    """Step ``world`` with ``controller`` until ``world.done()`` (or ``max_steps``): per control
-    period observe, decide (timed: wall clock and thread CPU), advance, record.
+    """Step ``environment`` with ``controller`` until ``environment.done()`` (or ``max_steps``): per
+    control period observe, decide (timed: wall clock and thread CPU), advance, record.
 
-    ``seed``: reset the world with it first (None: run the world as it is). ``on_step(k,
-    observation, decision)`` is called after step k has advanced the world.
+    ``seed``: reset the environment with it first (None: run it as it is). ``on_step(k,
+    observation, decision)`` is called after step k has advanced the environment.
     """
     if seed is not None:
-        world.reset(seed)
-    ro = Rollout(world, getattr(controller, "horizon", None), getattr(controller, "safety_radius", None))
+        environment.reset(seed)
+    ro = Rollout(environment, getattr(controller, "horizon", None), getattr(controller, "safety_radius", None))
     reason = ro.done()
     while reason is None:
         if max_steps is not None and len(ro.stats) >= max_steps:

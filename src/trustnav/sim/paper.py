@@ -44,8 +44,8 @@ from trustnav.trust import GammaParams
 __all__ = [
     "SCENARIOS",
     "Episode",
+    "PaperEnvironment",
     "PaperScenario",
-    "PaperWorld",
     "Pedestrian",
     "ScenarioResult",
     "episode_metrics",
@@ -184,8 +184,8 @@ class Episode:
         return np.linalg.norm(self.ego[:, None, :] - self.pedestrians, axis=2)
 
 
-class PaperWorld:
-    """A paper scenario as an engine :class:`~trustnav.sim.engine.World`: the single integrator
+class PaperEnvironment:
+    """A paper scenario as an engine :class:`~trustnav.sim.engine.Environment`: the single integrator
     ego applies each input exactly for ``dt`` (no latency), pedestrians move at constant velocity
     and their trusts are fixed; it ends at the goal (``goal_tolerance``) or after ``max_steps``."""
 
@@ -238,10 +238,10 @@ def run_episode(
     timing: str | None = None,
 ) -> Episode:
     """Closed loop on the engine: each step solve `proposed`, apply u(t) exactly (no latency), move
-    pedestrians (:class:`PaperWorld` with the scenario's MPC)."""
+    pedestrians (:class:`PaperEnvironment` with the scenario's MPC)."""
     cfg = scenario.config(horizon, timing)
     policy = make_mpc(SingleIntegrator(u_max=scenario.u_max), scenario.cost(), cfg, solver)
-    world = PaperWorld(scenario, trusts)
+    world = PaperEnvironment(scenario, trusts)
     res = run(world, policy)
     return Episode(
         scenario=scenario.name,

@@ -11,7 +11,7 @@ Two families, each a pure function of (spec, seed):
   4-10 m/s, 1-6 pedestrians near the lane (static on the kerb, on the lane edge, or crossing),
   and in a third of the episodes a pedestrian that steps onto the lane ahead part-way through.
 
-:class:`RandomEpisodeWorld` is a sampled world on the episode engine (:mod:`trustnav.sim.engine`);
+:class:`RandomEnvironment` is a sampled world on the episode engine (:mod:`trustnav.sim.engine`);
 :func:`run_world` runs one episode with the world's MPC and returns a record;
 :func:`hard_feasible_exists` is the independent check used for relaxed steps.
 """
@@ -40,7 +40,7 @@ from trustnav.sim.engine import Decision, EpisodeResult, MpcPolicy, Observation,
 from trustnav.trust import PAPER_GAMMA_CARLA, PAPER_GAMMA_NUMERICAL
 
 __all__ = [
-    "RandomEpisodeWorld",
+    "RandomEnvironment",
     "RandomWorld",
     "RandomWorldSpec",
     "hard_feasible_exists",
@@ -267,8 +267,8 @@ def _path_min_distance(
     return closest.min(axis=0)
 
 
-class RandomEpisodeWorld:
-    """A :class:`RandomWorld` as an engine :class:`~trustnav.sim.engine.World`.
+class RandomEnvironment:
+    """A :class:`RandomWorld` as an engine :class:`~trustnav.sim.engine.Environment`.
 
     Pedestrians move at constant velocity; a pedestrian is given to the controller from its
     appearance step on (a 'sudden' one appears at the distance in its kind ahead of the car). The
@@ -353,13 +353,13 @@ def run_world_result(world: RandomWorld, check_relaxed: bool = False) -> Episode
             checks[k] = hard_feasible_exists(policy.controller.problem, [policy.last_solution.inputs],
                                              seed=world.seed * 1000 + k)  # fmt: skip
 
-    res = run(RandomEpisodeWorld(world), policy, on_step=check)
+    res = run(RandomEnvironment(world), policy, on_step=check)
     res.stats = [replace(s, relaxed_feasible=checks.get(k)) for k, s in enumerate(res.stats)]
     return res
 
 
 def run_world(world: RandomWorld, check_relaxed: bool = False, keep_step_times: bool = False) -> dict[str, Any]:
-    """Closed loop on one world (:class:`RandomEpisodeWorld` on the engine); the record a
+    """Closed loop on one world (:class:`RandomEnvironment` on the engine); the record a
     reliability study needs: the engine's record (:meth:`~trustnav.sim.engine.EpisodeResult.to_record`)
     and the world's own fields.
 

@@ -5,7 +5,6 @@ paper's three (:data:`PAPER_TRAITS`) are the default. Imports nothing else of tr
 """
 
 from trustnav.trust.estimator import TrackState, TrustEstimator
-from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 from trustnav.trust.params import (
     MOVING_AVERAGE_TRUST,
     PAPER_GAMMA_CARLA,
@@ -26,6 +25,7 @@ from trustnav.trust.parts import (
     TraitStep,
     paper_traits,
 )
+from trustnav.trust.sighting import EYE_CONTACT, SMARTPHONE, Sighting
 from trustnav.trust.traits import (
     N_KEYPOINTS,
     eye_trait_init,
@@ -56,8 +56,8 @@ __all__ = [
     "CueTrait",
     "EyeContact",
     "GammaParams",
-    "Observation",
     "PoseFluctuation",
+    "Sighting",
     "SmartphoneUse",
     "TrackState",
     "Trait",

@@ -33,11 +33,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.trust import traits as tr
-from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 from trustnav.trust.params import PAPER_TRUST, TrustParams, as_number
 from trustnav.trust.parts import Trait, TraitSet, TraitStep, paper_traits, relax
+from trustnav.trust.sighting import EYE_CONTACT, SMARTPHONE, Sighting
 
-__all__ = ["Observation", "TrackState", "TrustEstimator"]
+__all__ = ["Sighting", "TrackState", "TrustEstimator"]
 
 _POSE = "pose_fluctuation"
 
@@ -136,10 +136,10 @@ class TrustEstimator:
         """Live tracks by id (read-only use)."""
         return self._tracks
 
-    def observe(self, obs: Observation) -> TrackState:
+    def add_sighting(self, obs: Sighting) -> TrackState:
         """Apply one observation; returns the track's updated state."""
-        if not isinstance(obs, Observation):
-            raise ValueError(f"observe needs an Observation, got {type(obs).__name__}")
+        if not isinstance(obs, Sighting):
+            raise ValueError(f"add_sighting needs a Sighting, got {type(obs).__name__}")
         p = self.params
         st = self._tracks.get(obs.track_id)
         if st is not None and obs.time < st.last_seen:
@@ -170,13 +170,13 @@ class TrustEstimator:
         st.observations += 1
         return st
 
-    def update(self, observations: Iterable[Observation], time: float | None = None) -> dict[int, TrackState]:
+    def add_frame(self, sightings: Iterable[Sighting], time: float | None = None) -> dict[int, TrackState]:
         """Apply a frame's observations, then forget tracks unseen for longer than keep_time."""
         if time is not None:
             time = as_number("time", time)
         latest = -math.inf
-        for obs in observations:
-            self.observe(obs)
+        for obs in sightings:
+            self.add_sighting(obs)
             latest = max(latest, obs.time)
         now = time if time is not None else latest
         if math.isfinite(now):

@@ -2,7 +2,7 @@
 
 A trait has a ``name``, a ``weight`` (rho_i in `lin_comb`), an :meth:`~Trait.initial` step (the
 "(0)" formula, at a track's first observation) and an :meth:`~Trait.update` step (the recursive
-formula, at every later observation), both reading an :class:`~trustnav.trust.observation.Observation`.
+formula, at every later observation), both reading an :class:`~trustnav.trust.sighting.Sighting`.
 A step returns a :class:`TraitStep`: the value s_i in [0, 1] (NaN while the trait is not available),
 the input confidence it used and anything it must remember for the next update.
 
@@ -15,7 +15,7 @@ A trait fed by one confidence cue subclasses :class:`CueTrait` and writes two fo
     class RedLightCrossing(CueTrait):
         name: str = "red_light"
         weight: float = 0.2
-        cue: str = "red_light"  # read from Observation(cues={"red_light": c})
+        cue: str = "red_light"  # read from Sighting(cues={"red_light": c})
 
         def start(self, c: float) -> float:  # s(0)
             return 1.0 - c
@@ -37,8 +37,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.trust import traits as tr
-from trustnav.trust.observation import EYE_CONTACT, SMARTPHONE, Observation
 from trustnav.trust.params import PAPER_TRUST, TrustParams, as_number
+from trustnav.trust.sighting import EYE_CONTACT, SMARTPHONE, Sighting
 
 __all__ = [
     "PAPER_TRAITS",
@@ -81,11 +81,11 @@ class Trait(Protocol):
     @property
     def weight(self) -> float: ...
 
-    def initial(self, obs: Observation) -> TraitStep:
+    def initial(self, obs: Sighting) -> TraitStep:
         """The trait at a track's first observation (NaN value if its input is missing)."""
         ...
 
-    def update(self, prev: TraitStep, obs: Observation) -> TraitStep:
+    def update(self, prev: TraitStep, obs: Sighting) -> TraitStep:
         """The trait after a later observation; ``prev`` unchanged if its input is missing."""
         ...
 
@@ -142,11 +142,11 @@ class CueTrait:
         time constant (the rate-invariant law of :class:`~trustnav.trust.params.TrustParams`)."""
         return self.step(prev, c)
 
-    def initial(self, obs: Observation) -> TraitStep:
+    def initial(self, obs: Sighting) -> TraitStep:
         c = obs.cue(self.cue)
         return TraitStep(math.nan, time=obs.time) if c is None else TraitStep(float(self.start(c)), c, time=obs.time)
 
-    def update(self, prev: TraitStep, obs: Observation) -> TraitStep:
+    def update(self, prev: TraitStep, obs: Sighting) -> TraitStep:
         c = obs.cue(self.cue)
         if c is None:
             return prev
@@ -252,16 +252,16 @@ class PoseFluctuation:
         object.__setattr__(self, "sensitivity", f)
 
     @staticmethod
-    def _pose(obs: Observation) -> NDArray[np.float64] | None:
+    def _pose(obs: Sighting) -> NDArray[np.float64] | None:
         return None if obs.keypoints is None else tr.relative_pose(obs.keypoints, obs.bbox)
 
-    def initial(self, obs: Observation) -> TraitStep:
+    def initial(self, obs: Sighting) -> TraitStep:
         rel = self._pose(obs)
         if self.time_constant is not None:
             return TraitStep(self.nu0, math.nan, [] if rel is None else [(obs.time, rel)], obs.time)
         return TraitStep(self.nu0, math.nan, rel, obs.time)
 
-    def update(self, prev: TraitStep, obs: Observation) -> TraitStep:
+    def update(self, prev: TraitStep, obs: Sighting) -> TraitStep:
         rel = self._pose(obs)
         if rel is None:
             return prev

@@ -4,7 +4,7 @@
 estimation, three ways: **trust-aware** (the controller gets each pedestrian's estimated trust, as
 ``trustnav drive``), and **trust-blind** at both ends of gamma(trust): every pedestrian handed
 trust 0 (gamma = gamma_ini, the most cautious barrier rate) and trust 1 (gamma = gamma_ini + delta,
-the least cautious). Only the trusts the controller gets differ (:class:`ConstantTrustWorld`).
+the least cautious). Only the trusts the controller gets differ (:class:`ConstantTrustEnvironment`).
 A scenario with ``variants`` (Case II) is compared per variant. :func:`comparison_rows` is the table.
 """
 
@@ -17,25 +17,25 @@ from typing import Any
 
 import numpy as np
 
-from trustnav.sim.driving.episode import DriveResult, DriveSimulation, drive, make_sensor, prepare_scenario
+from trustnav.sim.driving.episode import DriveEnvironment, DriveResult, drive, make_sensor, prepare_scenario
 from trustnav.sim.driving.sensing import make_render_sensing
 from trustnav.sim.driving.variants import variants_of
 from trustnav.sim.driving.world import DriveScenario
 from trustnav.sim.engine import Observation
 from trustnav.trust.traits import gamma as gamma_of
 
-__all__ = ["TRUST_MODES", "ConstantTrustWorld", "TrustComparison", "TrustRun", "compare_trust", "comparison_rows"]
+__all__ = ["TRUST_MODES", "ConstantTrustEnvironment", "TrustComparison", "TrustRun", "compare_trust", "comparison_rows"]
 
 #: label -> the constant trust the controller gets (None: trust-aware, the estimated trusts)
 TRUST_MODES: dict[str, float | None] = {"trust-aware": None, "constant trust 0": 0.0, "constant trust 1": 1.0}
 
 
-class ConstantTrustWorld:
+class ConstantTrustEnvironment:
     """A drive world whose controller is handed ``trust`` for every pedestrian (trust-blind);
     perception, trust estimation and the records run as usual (the records keep the estimated
     trusts)."""
 
-    def __init__(self, sim: DriveSimulation, trust: float) -> None:
+    def __init__(self, sim: DriveEnvironment, trust: float) -> None:
         if not 0.0 <= trust <= 1.0:
             raise ValueError(f"trust must be in [0, 1], got {trust!r}")
         self._sim = sim
@@ -116,9 +116,9 @@ def compare_trust(
             if sensing == "render":
                 renderer, pipeline = make_render_sensing(sc, capture_rate)
             try:
-                sim = DriveSimulation(sc, seed=seed, sensor=make_sensor(sensing, renderer, pipeline),
+                sim = DriveEnvironment(sc, seed=seed, sensor=make_sensor(sensing, renderer, pipeline),
                                       capture_rate=capture_rate, state=state)  # fmt: skip
-                world = sim if trust is None else ConstantTrustWorld(sim, trust)
+                world = sim if trust is None else ConstantTrustEnvironment(sim, trust)
                 step = None if progress is None else (lambda t, d, label=label: progress(label, t, d))
                 result = drive(world, sensing, progress=step)  # type: ignore[arg-type]
             finally:

@@ -2,7 +2,7 @@
 
 :func:`run_demo` drives Case I with the library's comparison (:func:`compare_trust`, render
 sensing: rendered camera -> perception -> trust -> MPC) trust-aware and with every pedestrian handed
-:data:`DEMO_EQUAL_TRUST` (:class:`~trustnav.sim.driving.compare.ConstantTrustWorld`: the same world,
+:data:`DEMO_EQUAL_TRUST` (:class:`~trustnav.sim.driving.compare.ConstantTrustEnvironment`: the same world,
 camera and perception, only the trusts the controller gets differ), and trust-aware once more in
 keypoint sensing (ideal landmarks). Pure: no files written (the figures:
 :func:`trustnav.viz.drive_plots.write_demo_outputs`).

@@ -19,13 +19,16 @@ Two ways the controller learns where pedestrians are (``state``):
 * ``true``: positions and velocities from the world (as in the authors' code), optionally with
   noise; trust from perception, associated with the world's pedestrians by their true boxes.
 
-The world is one implementation of :class:`DriveWorld` (ego state, pedestrian states, what the
-camera sees, apply a command, advance time): :class:`SimWorld` is trustnav's own (bicycle plant with
-actuation latency, constant-velocity pedestrians), ``trustnav.carla_bridge.CarlaWorld`` a CARLA
-server. :class:`DriveSimulation` adds the camera rate, sensing and trust memory to a world and is the
-engine's :class:`~trustnav.sim.engine.World` of every drive (:func:`drive` runs it with the MPC on
-the engine's runner; the Gymnasium environment steps the same world through a
-:class:`~trustnav.sim.engine.Rollout` with any controller);
+The physical world is a :class:`World` (ego state, pedestrian states, what the camera sees, apply
+a command, advance time): :class:`SimWorld` is trustnav's own (bicycle plant with actuation latency,
+constant-velocity or behaving pedestrians), ``trustnav.carla_bridge.CarlaWorld`` a CARLA server.
+:class:`DriveEnvironment` is a World seen through the car's camera: the engine's
+:class:`~trustnav.sim.engine.Environment` of every drive. Its ``observe()`` is a frame's path to the
+controller as calls (:mod:`~trustnav.sim.driving.frame_path`: frame -> perception -> perception
+latency -> world tracker -> the controller's input), with scoring against ground truth beside it
+(:mod:`~trustnav.sim.driving.frame_scoring`). :func:`drive` runs it with the MPC on the engine's
+runner; the Gymnasium environment steps the same DriveEnvironment through a
+:class:`~trustnav.sim.engine.Rollout` with any controller.
 :func:`run_drive` is a pure function of (scenario, parameters, seed) that returns a
 :class:`DriveResult` and writes nothing.
 """
@@ -44,19 +47,16 @@ from numpy.typing import ArrayLike, NDArray
 from trustnav.control import SolveStatus
 from trustnav.geometry.camera import CameraPose
 from trustnav.perception.localisation import chi2_90
-from trustnav.perception.pedestrians import PedestrianEstimator, SeenPerson
 from trustnav.sim.driving import topview
 from trustnav.sim.driving.behaviour import PedestrianMotion
 from trustnav.sim.driving.body import Appearance, Skeleton
+from trustnav.sim.driving.frame_path import Frame, PerceptionLatency, frame_path
+from trustnav.sim.driving.frame_scoring import FrameScoring
 from trustnav.sim.driving.sensing import (
     SENSING_MODES,
     FrameReport,
     KeypointSensor,
-    PedestrianView,
     RenderSensor,
-    TrustTracker,
-    in_view,
-    projected_box,
 )
 from trustnav.sim.driving.world import (
     DriveScenario,
@@ -69,10 +69,10 @@ from trustnav.sim.engine import Decision, EpisodeResult, Observation, Sample, ma
 
 __all__ = [
     "STATES",
+    "DriveEnvironment",
     "DriveResult",
-    "DriveSimulation",
-    "DriveWorld",
     "SimWorld",
+    "World",
     "drive",
     "drive_metrics",
     "drive_result",
@@ -87,7 +87,7 @@ STATES = ("perceived", "true")
 
 
 @runtime_checkable
-class DriveWorld(Protocol):
+class World(Protocol):
     """What the drive loop needs from a world, in the scenario's coordinates (metres, x/y ground,
     yaw rad counter-clockwise from +x; pedestrians in scenario order)."""
 
@@ -186,13 +186,17 @@ class SimWorld:
         return sub, peds
 
 
-class DriveSimulation:
-    """A world with its camera rate, sensing and trust memory, advanced one control period at a time.
+class DriveEnvironment:
+    """The engine's :class:`~trustnav.sim.engine.Environment` of a drive: a :class:`World` seen
+    through the car's camera at its rate and the frame's path to the controller
+    (:mod:`~trustnav.sim.driving.frame_path`), advanced one control period at a time.
 
-    ``world``: a :class:`DriveWorld` (default :class:`SimWorld` of the scenario). ``sensor``: a
+    ``world``: a :class:`World` (default :class:`SimWorld` of the scenario). ``sensor``: a
     :class:`KeypointSensor` (default, built from the scenario and seed) or a :class:`RenderSensor`.
     ``state``: "perceived" (the controller's pedestrians from the camera) or "true" (from the
     world); see the module. Randomness (sensing noise, controller-input noise) comes from ``seed``.
+    Its parts: ``path`` (perception, tracker, controller input), ``latency`` (the frames in flight),
+    ``scoring`` (ground truth, for the reports only) and ``frames`` (the reports, in capture order).
     """
 
     def __init__(
@@ -202,7 +206,7 @@ class DriveSimulation:
         sensor: KeypointSensor | RenderSensor | None = None,
         capture_rate: float | None = None,
         control_rate: float | None = None,
-        world: DriveWorld | None = None,
+        world: World | None = None,
         max_frames: int | None = None,
         state: str = "perceived",
     ) -> None:
@@ -220,7 +224,7 @@ class DriveSimulation:
         self._own_sensor = sensor is None
         self.sensor: KeypointSensor | RenderSensor | None = sensor
         self._given_world = world
-        self.world: DriveWorld = SimWorld(scenario) if world is None else world
+        self.world: World = SimWorld(scenario) if world is None else world
         self.name = self.world.name
         self.command_size = 2  # the car's (steer, acceleration)
         n, expected = len(self.world.pedestrian_states()[0]), len(scenario.pedestrians)
@@ -243,13 +247,14 @@ class DriveSimulation:
         self.rng_inputs = np.random.default_rng(input_seq)
         if self._own_sensor:
             self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
-        self.trust = TrustTracker(len(sc.pedestrians), sc.sensing.trust_params(), keep_time=sc.sensing.keep_time)
-        tracker = sc.sensing.tracker(keypoints=isinstance(self.sensor, KeypointSensor))
-        self.perceived = PedestrianEstimator(sc.sensing.localiser(), tracker, self.trust.estimator)
-        self._truth_track: dict[int, int] = {}  # pedestrian index -> world track last seen as it (scoring)
-        self._truth_trust = np.zeros(len(sc.pedestrians))  # its trust then (0 until seen)
-        self.frames: list[FrameReport] = []  # delivered (perception_latency after capture), in capture order
-        self._in_flight: list[_Captured] = []  # captured, not yet delivered
+        assert self.sensor is not None
+        n = len(sc.pedestrians)
+        self.path = frame_path(
+            self.state_source, self.sensor, sc.sensing, n, self.street.ground_height, self.pedestrians, self.rng_inputs
+        )
+        self.latency = PerceptionLatency(sc.sensing.perception_latency)
+        self.scoring = FrameScoring(sc.sensing, n, self.path.trust, perceived=self.state_source == "perceived")
+        self.frames: list[FrameReport] = []  # reported when taken in (perception_latency after capture)
         self._captured = 0
         self._next_capture = 0.0
         self.steps = 0
@@ -277,128 +282,40 @@ class DriveSimulation:
         """True positions and velocities (N, 2) now."""
         return self.world.pedestrian_states()
 
-    def controller_inputs(self) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """(ego state, pedestrian positions, velocities, trusts) as the controller gets them: the
-        perceived tracks predicted to now (``state`` "perceived"), or the world's pedestrians in
-        scenario order, with the configured noise ("true")."""
-        if self.state_source == "perceived":
-            est = self.perceived.estimates(self.time)
-            return self.state, est.positions, est.velocities, est.trusts
-        pos, vel = self.pedestrians()
-        s = self.scenario.sensing
-        if s.position_noise > 0:
-            pos = pos + self.rng_inputs.normal(0.0, s.position_noise, pos.shape)
-        if s.velocity_noise > 0:
-            vel = vel + self.rng_inputs.normal(0.0, s.velocity_noise, vel.shape)
-        return self.state, pos, vel, self.trust.trusts()
-
-    def _pedestrian_trust(self, j: int) -> float | None:
-        """The trust the controller holds for world pedestrian ``j`` (scoring): its index's memory
-        ("true"), or that of the world track last seen as it ("perceived"); None before any."""
-        if self.state_source == "true":
-            return self.trust.trust(j)
-        tid = self._truth_track.get(j)
-        if tid is None:
-            return None
-        t = self.trust.estimator.trust(tid)
-        if t is not None:
-            self._truth_trust[j] = t
-        return float(self._truth_trust[j])
-
     def pedestrian_trusts(self) -> NDArray[np.float64]:
         """(N,) the trust in force for each world pedestrian (0 before it is seen), for records."""
-        if self.state_source == "true":
-            return self.trust.trusts()
-        return np.array([self._pedestrian_trust(j) or 0.0 for j in range(len(self.scenario.pedestrians))])
+        return self.scoring.trusts()
 
     def capture_due(self) -> bool:
-        return self.time + 1e-9 >= self._next_capture
+        """A frame is due (the camera's rate) and ``max_frames`` not reached."""
+        more = self.max_frames is None or self._captured < self.max_frames
+        return more and self.time + 1e-9 >= self._next_capture
 
-    @property
-    def perception_latency(self) -> float:
-        """Seconds from a frame's capture to its people reaching the estimates (``SensingSpec``)."""
-        return self.scenario.sensing.perception_latency
-
-    def capture(self) -> FrameReport | None:
-        """Capture a frame now and perceive it; its people update the estimates and trusts
-        ``perception_latency`` later (:meth:`deliver`). Returns the frame's report if that is now
-        (no latency), else None (the frame is in flight)."""
+    def capture_frame(self) -> Frame:
+        """The camera's frame now through perception (:meth:`FramePath.perceive`); the truth at
+        this instant is kept for scoring the frame."""
         cam, bodies = self.world.camera_view()
-        sensed, image, false_pos, timing = self.sensor.sense(cam, bodies, self.time)
-        if image is None:
-            image = self.world.frame_image()
-        true_pos, true_vel = self.pedestrians()
-        captured = _Captured(
-            self._captured, self.time, cam, bodies, sensed, image, false_pos, timing, true_pos, true_vel
-        )
-        self._in_flight.append(captured)
+        to_scenario = getattr(self.world, "camera_to_scenario", None)  # e.g. CARLA's left-handed map
+        frame = self.path.perceive(self._captured, self.time, cam, bodies, self.world.frame_image, to_scenario)
+        self.scoring.keep(frame.index, bodies, *self.pedestrians())
         self._captured += 1
         self._next_capture = self._captured / self.capture_rate
-        delivered = self.deliver()
-        return delivered[-1] if delivered and delivered[-1].index == captured.index else None
+        return frame
 
-    def deliver(self) -> list[FrameReport]:
-        """Fold in the frames in flight whose ``perception_latency`` has passed, in capture order;
-        returns their reports."""
-        due = self.time + 1e-9 - self.perception_latency
-        out = []
-        while self._in_flight and self._in_flight[0].time <= due:
-            out.append(self._fold_in(self._in_flight.pop(0)))
-        return out
-
-    def _fold_in(self, c: _Captured) -> FrameReport:
-        """A captured frame's people into the world tracker and trusts, at its capture time."""
-        sc = self.scenario
-        cam, bodies, sensed, true_pos, true_vel = c.camera, c.bodies, c.sensed, c.true_pos, c.true_vel
-        tracks: tuple[Any, ...] = ()
-        estimate: dict[int, tuple[NDArray, NDArray]] = {}
-        if self.state_source == "perceived":
-            seen = [SeenPerson(s.person, s.eye_contact, s.phone) for s in sensed]
-            to_world = getattr(self.world, "camera_to_scenario", None)  # e.g. CARLA's left-handed map
-            ids = self.perceived.update(c.time, cam, seen, self.street.ground_height, to_world)
-            tracks = tuple(self.perceived.tracker.predict(c.time))
-            by_id = {t.track_id: t for t in tracks}
-            memory = self.trust.estimator
-            sensed = [
-                replace(s, track_id=-1 if tid is None else tid, trust=None if tid is None else memory.trust(tid))
-                for s, tid in zip(sensed, ids, strict=True)
-            ]
-            for s, tid in zip(sensed, ids, strict=True):
-                if s.index is not None and tid is not None and tid in by_id:  # scoring only
-                    self._truth_track[s.index] = tid
-                    estimate[s.index] = (by_id[tid].mean, by_id[tid].covariance)
-        else:
-            self.trust.update(sensed, c.time)
-            sensed = [replace(s, trust=None if s.index is None else self.trust.trust(s.index)) for s in sensed]
-        by_index = {
-            s.index: s for s in sensed if s.index is not None and (s.track_id >= 0 or self.state_source == "true")
-        }
-        views = []
-        for j, (sk, _) in enumerate(bodies):
-            seen_j = by_index.get(j)
-            est = estimate.get(j)
-            views.append(
-                PedestrianView(
-                    index=j,
-                    in_view=in_view(cam, sk, sc.sensing),
-                    box=projected_box(cam, sk),
-                    observed=seen_j is not None,
-                    track_id=None if seen_j is None else seen_j.track_id,
-                    eye_contact=None if seen_j is None else seen_j.eye_contact,
-                    phone=None if seen_j is None else seen_j.phone,
-                    trust=self._pedestrian_trust(j),
-                    position=true_pos[j].copy(),
-                    velocity=true_vel[j].copy(),
-                    estimate=None if est is None else est[0].copy(),
-                    estimate_cov=None if est is None else est[1].copy(),
-                )
-            )
-        report = FrameReport(
-            c.index, c.time, views, c.false_positives, c.timing, cam, sensed, c.image, tracks,
-            delivered=None if self.time <= c.time + 1e-9 else self.time,
-        )  # fmt: skip
+    def take_in(self, frame: Frame) -> FrameReport:
+        """A frame whose latency has passed into the tracker (:meth:`FramePath.track`), and its
+        report (scored against the truth at its capture)."""
+        report = self.scoring.report(self.path.track(frame), self.time)
         self.frames.append(report)
         return report
+
+    def capture(self) -> FrameReport | None:
+        """Capture a frame now (:meth:`capture_frame`), then take in the frames whose latency has
+        passed. Returns the new frame's report if that is now (no latency), else None."""
+        frame = self.capture_frame()
+        self.latency.put(frame)
+        reports = [self.take_in(f) for f in self.latency.due(self.time)]
+        return reports[-1] if reports and reports[-1].index == frame.index else None
 
     def advance_samples(
         self, command: ArrayLike, duration: float | None = None
@@ -418,18 +335,16 @@ class DriveSimulation:
         control period); returns the ego's sub-step states."""
         return self.advance_samples(command, duration)[0]
 
-    # -- the engine's World protocol (trustnav.sim.engine)
+    # -- the engine's Environment protocol (trustnav.sim.engine)
     def observe(self) -> Observation:
-        """Fold in the frames whose perception latency has passed, capture a frame when one is due (up
-        to ``max_frames``), then the controller's inputs."""
-        self.deliver()
-        if self.capture_due() and (self.max_frames is None or self._captured < self.max_frames):
-            self.capture()
-        if self.state_source == "perceived":
-            est = self.perceived.estimates(self.time)
-            return Observation(self.time, self.state, est.positions, est.velocities, est.trusts, est.covariances)
-        state, pos, vel, tr = self.controller_inputs()
-        return Observation(self.time, state, pos, vel, tr)
+        """The controller's input now, as the frame's path: a frame captured when one is due goes
+        through perception and waits out the perception latency; the frames due go into the
+        tracker (each scored beside the path); the tracks predicted to now are the input."""
+        if self.capture_due():
+            self.latency.put(self.capture_frame())  # frame -> perception: people
+        for frame in self.latency.due(self.time):  # the perception latency has passed
+            self.take_in(frame)  # people -> world tracks with covariances, trust per track
+        return self.path.controller_input(self.time, self.state)  # tracks predicted to now
 
     def done(self) -> str | None:
         """ "goal" within ``goal_tolerance``; "time" after the scenario's duration (in control steps)."""
@@ -451,22 +366,6 @@ class DriveSimulation:
 
     def reached_goal(self) -> bool:
         return self.distance_to_goal() <= self.scenario.goal_tolerance
-
-
-@dataclass(frozen=True)
-class _Captured:
-    """A frame as captured and perceived, before its people reach the estimates."""
-
-    index: int
-    time: float
-    camera: CameraPose
-    bodies: Bodies
-    sensed: list
-    image: NDArray[np.uint8] | None
-    false_positives: int
-    timing: dict[str, float]
-    true_pos: NDArray[np.float64]  # scoring only
-    true_vel: NDArray[np.float64]
 
 
 @dataclass
@@ -491,7 +390,7 @@ class DriveResult:
     reached_goal: bool
     time_to_goal: float | None
     min_distance_fine: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # over plant sub-steps
-    world: str = "sim"  # which DriveWorld ran it
+    world: str = "sim"  # which World ran it
     episode: EpisodeResult | None = None  # the engine's result it was read from
     state: str = "true"  # where the controller's pedestrian states came from ("perceived" or "true")
 
@@ -706,8 +605,8 @@ def run_drive(
     """
     sensor = make_sensor(sensing, renderer, pipeline)
     sc = prepare_scenario(scenario, attentive, control_rate)
-    sim = DriveSimulation(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
-    return drive(sim, sensing, progress=progress, max_frames=max_frames)
+    environment = DriveEnvironment(sc, seed=seed, sensor=sensor, capture_rate=capture_rate, state=state)
+    return drive(environment, sensing, progress=progress, max_frames=max_frames)
 
 
 def prepare_scenario(
@@ -722,7 +621,7 @@ def prepare_scenario(
 
 
 def make_sensor(sensing: str, renderer: Any = None, pipeline: Any = None) -> RenderSensor | None:
-    """The sensor of a sensing mode: None for "keypoints" (DriveSimulation builds it from its seed),
+    """The sensor of a sensing mode: None for "keypoints" (DriveEnvironment builds it from its seed),
     a RenderSensor over ``renderer`` and ``pipeline`` for "render"."""
     if sensing not in SENSING_MODES:
         raise ValueError(f"sensing must be one of {SENSING_MODES}, got {sensing!r}")
@@ -734,38 +633,38 @@ def make_sensor(sensing: str, renderer: Any = None, pipeline: Any = None) -> Ren
 
 
 def drive(
-    sim: DriveSimulation,
+    environment: DriveEnvironment,
     sensing: str,
     progress: Callable[[float, float], None] | None = None,
     max_frames: int | None = None,
 ) -> DriveResult:
-    """Run the trust-aware MPC on ``sim`` (any :class:`DriveWorld`) with the engine's runner until
-    the goal or the scenario's duration: per control step capture a frame when due, read the
-    controller's inputs, solve, and apply the plan's first input (index 0: the command for now; the
+    """Run the trust-aware MPC on ``environment`` (on any :class:`World`) with the engine's runner
+    until the goal or the scenario's duration: per control step its ``observe()`` (a frame's path to
+    the controller), solve, and apply the plan's first input (index 0: the command for now; the
     controller itself plans from the state predicted ``control.latency`` ahead)."""
-    sc = sim.scenario
+    sc = environment.scenario
     if max_frames is not None:
-        sim.max_frames = max_frames
-    config = sc.control.config(sim.capture_rate, sc.sensing.perception_latency)
+        environment.max_frames = max_frames
+    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency)
     model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
     policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road))
 
     def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:
-            progress(sim.time, sc.duration)
+            progress(environment.time, sc.duration)
 
-    return drive_result(sim, sensing, run(sim, policy, on_step=report))
+    return drive_result(environment, sensing, run(environment, policy, on_step=report))
 
 
-def drive_result(sim: DriveSimulation, sensing: str, episode: EpisodeResult) -> DriveResult:
-    """The :class:`DriveResult` of an engine episode on ``sim``."""
+def drive_result(environment: DriveEnvironment, sensing: str, episode: EpisodeResult) -> DriveResult:
+    """The :class:`DriveResult` of an engine episode on ``environment``."""
     plans = [p for p in episode.plans if p is not None]
     n = episode.steps
     return DriveResult(
-        scenario=sim.scenario,
+        scenario=environment.scenario,
         sensing=sensing,
-        seed=sim.seed,
-        capture_rate=sim.capture_rate,
+        seed=environment.seed,
+        capture_rate=environment.capture_rate,
         times=episode.times,
         ego=episode.ego,
         pedestrians=episode.pedestrians,
@@ -775,13 +674,13 @@ def drive_result(sim: DriveSimulation, sensing: str, episode: EpisodeResult) -> 
         slack=np.array([s.relaxed for s in episode.stats], dtype=bool).reshape(n),
         solve_times=np.array([s.solve_time for s in episode.stats if math.isfinite(s.solve_time)]),
         plans=np.array(plans) if plans else np.zeros((0, 2, 4)),
-        frames=sim.frames,
+        frames=environment.frames,
         reached_goal=episode.reached_goal,
-        time_to_goal=sim.time if episode.reached_goal else None,
-        min_distance_fine=sim.min_distance_fine.copy() if sim.steps else np.zeros(0),
-        world=sim.world.name,
+        time_to_goal=environment.time if episode.reached_goal else None,
+        min_distance_fine=environment.min_distance_fine.copy() if environment.steps else np.zeros(0),
+        world=environment.world.name,
         episode=episode,
-        state=sim.state_source,
+        state=environment.state_source,
     )
 
 

@@ -37,7 +37,7 @@ Reward: ``progress_reward`` x progress along the lane (m), ``- margin_penalty`` 
 pedestrian inside the margin R, ``- collision_penalty``, ``- off_road_penalty`` at those ends,
 ``+ goal_reward`` at the goal.
 
-The environment steps the same engine world as ``trustnav drive`` (:class:`DriveSimulation`, through
+The environment steps the same engine world as ``trustnav drive`` (:class:`DriveEnvironment`, through
 a :class:`~trustnav.sim.engine.Rollout`): the same capture, sensing, controller inputs and plant.
 ``render_mode`` is None (default) or "rgb_array": ``render()`` then returns the top view
 (``view="top"``) or the latest camera image (``view="camera"``: the rendered frame with render
@@ -57,7 +57,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from trustnav.schema import Dotted, Flag, Integer, Maybe, Number, OneOf, SchemaError, check_fields, load
-from trustnav.sim.driving.episode import STATES, DriveResult, DriveSimulation, drive_result
+from trustnav.sim.driving.episode import STATES, DriveEnvironment, DriveResult, drive_result
 from trustnav.sim.driving.sensing import RenderSensor, make_render_sensing
 from trustnav.sim.driving.world import DriveScenario, load_drive_scenario
 from trustnav.sim.engine import Decision, Rollout
@@ -137,7 +137,7 @@ class DriveEnv(gym.Env):
         self.render_fn = render_fn
         self._renderer: Any = None
         self._pipeline: Any = None
-        self.sim: DriveSimulation | None = None
+        self.sim: DriveEnvironment | None = None
         self.rollout: Rollout | None = None
         self._ended: str | None = None
         self.settings = DriveEnvConfig()
@@ -205,7 +205,7 @@ class DriveEnv(gym.Env):
             self._renderer, self._pipeline = make_render_sensing(self.scenario, self.capture_rate)
             sensor = RenderSensor(self._renderer, self._pipeline)
         run_seed = int(self.np_random.integers(2**31)) if seed is None else int(seed)
-        self.sim = DriveSimulation(
+        self.sim = DriveEnvironment(
             self.scenario, seed=run_seed, sensor=sensor, capture_rate=self.capture_rate, state=self.state
         )
         sc = self.scenario.control

@@ -24,7 +24,6 @@ observed has trust 0 (gamma = gamma_ini, the safe default).
 from __future__ import annotations
 
 import inspect
-import math
 import time as _time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -40,7 +39,6 @@ from trustnav.perception.phone import PoseGeometryPhoneClassifier, TemporalPhone
 from trustnav.perception.types import Person, box_iou
 from trustnav.sim.driving.body import Appearance, Skeleton
 from trustnav.sim.driving.world import SensingSpec, street_of
-from trustnav.trust import PAPER_TRUST, Observation, TrustEstimator, TrustParams
 
 __all__ = [
     "SENSING_MODES",
@@ -49,7 +47,6 @@ __all__ = [
     "PedestrianView",
     "RenderSensor",
     "SensedPerson",
-    "TrustTracker",
     "make_render_pipeline",
     "make_render_sensing",
     "projected_box",
@@ -283,7 +280,7 @@ class KeypointSensor:
             inputs = np.stack([normalise_keypoints(p.keypoints, p.confidences, w) for _, p in found])
             eye = self.eye_model.predict(inputs)
             for (j, p), e in zip(found, eye, strict=True):
-                phone = self.temporal_phone.update(j, time, p.keypoints, p.confidences).phone
+                phone = self.temporal_phone.add_pose(j, time, p.keypoints, p.confidences).phone
                 out.append(SensedPerson(j, j, p, float(e), float(phone)))
         return out, None, 0, {"keypoints": _time.perf_counter() - t0}
 
@@ -333,41 +330,6 @@ class RenderSensor:
         ]
         timing = {"render": t1 - t0, "perception": t2 - t1}
         return out, frame, sum(j is None for j in label), timing
-
-
-class TrustTracker:
-    """The trust memory of the world's pedestrians (`lin_comb`, `agg_trust` in TrustEstimator),
-    keyed by pedestrian index and updated only from what perception observed."""
-
-    def __init__(self, n: int, params: TrustParams = PAPER_TRUST, keep_time: float = math.inf) -> None:
-        self.n = n
-        self.estimator = TrustEstimator(params, keep_time=keep_time)
-        self.observations = np.zeros(n, dtype=int)
-
-    def update(self, sensed: Sequence[SensedPerson], time: float) -> None:
-        """Update from the frame's people labelled with a pedestrian (unlabelled ones are skipped)."""
-        sensed = [s for s in sensed if s.index is not None]
-        obs = [
-            Observation(
-                track_id=s.index,
-                time=time,
-                c_smartphone=s.phone,
-                c_eye=s.eye_contact,
-                keypoints=s.person.keypoints,
-                bbox=s.person.bbox,
-            )
-            for s in sensed
-        ]
-        self.estimator.update(obs, time=time)
-        for s in sensed:
-            self.observations[s.index] += 1  # type: ignore[index]
-
-    def trusts(self) -> NDArray[np.float64]:
-        """(N,) trusts for the controller; 0 (gamma_ini) for a pedestrian never observed."""
-        return self.estimator.trusts(np.arange(self.n), default=0.0)
-
-    def trust(self, index: int) -> float | None:
-        return self.estimator.trust(index)
 
 
 def make_render_sensing(

@@ -13,11 +13,11 @@ from numpy.typing import NDArray
 
 from trustnav.trust.params import as_number
 
-__all__ = ["EYE_CONTACT", "SMARTPHONE", "Observation"]
+__all__ = ["EYE_CONTACT", "SMARTPHONE", "Sighting"]
 
-#: Cue name of C_sm (`smato_score`), carried by :attr:`Observation.c_smartphone`.
+#: Cue name of C_sm (`smato_score`), carried by :attr:`Sighting.c_smartphone`.
 SMARTPHONE = "smartphone"
-#: Cue name of C_eye (`eye_score`), carried by :attr:`Observation.c_eye`.
+#: Cue name of C_eye (`eye_score`), carried by :attr:`Sighting.c_eye`.
 EYE_CONTACT = "eye_contact"
 _FIELD_OF = {SMARTPHONE: "c_smartphone", EYE_CONTACT: "c_eye"}
 
@@ -30,7 +30,7 @@ def _confidence(name: str, value: object) -> float:
 
 
 @dataclass(frozen=True)
-class Observation:
+class Sighting:
     """What perception saw of one track at one instant. Any trait input may be missing (None).
 
     c_smartphone, c_eye: the paper's cues C_sm and C_eye (cue names :data:`SMARTPHONE`,
@@ -77,7 +77,7 @@ class Observation:
             if not isinstance(name, str) or not name:
                 raise ValueError(f"observation cue names must be non-empty strings, got {name!r}")
             if name in _FIELD_OF:
-                raise ValueError(f"cue {name!r} is carried by Observation.{_FIELD_OF[name]}; pass it there")
+                raise ValueError(f"cue {name!r} is carried by Sighting.{_FIELD_OF[name]}; pass it there")
             cues[name] = _confidence(f"cue {name!r}", value)
         object.__setattr__(self, "cues", MappingProxyType(cues))
 
