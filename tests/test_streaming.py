@@ -98,6 +98,11 @@ def test_realtime_backend_config_is_validated():
     for bad in (0, -2, 1.5, True):
         with pytest.raises(ValueError, match="search_frames"):
             RealtimeConfig(search_frames=bad)
+    for bad in (300, 96, True):
+        with pytest.raises(ValueError, match="detector_input"):
+            RealtimeConfig(detector_input=bad)
+    with pytest.raises(ValueError, match="pipelined"):
+        RealtimeConfig(pipelined=1)
 
 
 def test_modelled_search_spans_the_frames_of_its_seconds():
@@ -136,6 +141,35 @@ def test_realtime_backend_is_deterministic_and_refits_each_person_within_its_bud
     assert any(c for frame in runs[0] for *_, c in frame)  # people carried between their fits
     assert any(not c for frame in runs[0][1:] for *_, c in frame)  # and refitted
     assert max(a for frame in ages for a in frame) <= 8  # nobody waits long for a refit
+
+
+@pytest.mark.slow
+def test_pipelined_fits_are_taken_in_on_the_next_frame_and_find_the_in_frame_people(sequences, read_rgb):
+    """Pipelined (the default): the fits chosen on frame k run while frame k + 1 is detected and are
+    reported there (fresh, not carried) on that frame's boxes; the stream's first frame waits for its
+    own fits. The people >= 80 px tall are those the in-frame schedule reports (a new one a frame later)."""
+    from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend
+    from trustnav.perception.types import box_iou
+
+    frames = [read_rgb(f) for f in sorted((sequences / "walk_a").iterdir())[:8]]
+    found = {}
+    for pipelined in (True, False):
+        rt = RealtimePoseBackend(realtime=RealtimeConfig(pipelined=pipelined))
+        try:
+            out = []
+            for k, f in enumerate(frames):
+                people = rt(f)
+                fresh = [q for q in rt._people if not q.person.extra.get("carried")]
+                assert fresh or k > 0
+                lag = 1 if pipelined and k > 0 else 0
+                assert all(q.fitted_at == k - lag for q in fresh)
+                out.append([p.bbox for p in people if p.bbox[3] - p.bbox[1] >= 80])
+            found[pipelined] = out
+        finally:
+            rt.close()
+    # a new person is reported one frame later; the first frame and, once settled, the rest agree
+    for a, b in [*zip(found[True], found[False], strict=True)][:1] + [*zip(found[True], found[False], strict=True)][4:]:
+        assert len(a) == len(b) and all(max(box_iou(p, q) for q in b) > 0.7 for p in a)
 
 
 @pytest.mark.slow
