@@ -40,6 +40,7 @@ from trustnav.perception.ground_gate import Rejection, gate_boxes
 from trustnav.perception.mediapipe_backend import (
     MediaPipeConfig,
     MediaPipePoseBackend,
+    box_region,
     one_box_per_person,
 )
 from trustnav.perception.types import Person, box_iou, check_frame
@@ -304,7 +305,11 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         for f in due:
             roi = f.roi.copy()
             roi[:2] += f.velocity * (index - f.fitted_at)
-            jobs.append((f, roi[None, :], f.fitted.score, f.box.copy(), f.seen_at == index))
+            seen = f.seen_at == index
+            # the region its last fit gives, then (where the detector boxed it now) its box's own square:
+            # some people (one seen from behind) the first does not fit in most frames, the second does
+            rois = np.vstack([roi, box_region(f.box, self.config.region_scale)]) if seen else roi[None, :]
+            jobs.append((f, rois, f.fitted.score, f.box.copy(), seen))
         jobs += [(None, self._regions(boxes[j], []), float(scores[j]), boxes[j].astype(np.float64), True) for j in new]
         image = frame.copy()  # the caller may reuse its buffer while the workers read this one
         futures = [
