@@ -5,8 +5,9 @@ float32 (S = 416 in the release): the frame in BGR, 0-255, resized with its aspe
 top-left corner of a canvas filled with 114. Output 1 x A x 85 per anchor over strides 8, 16, 32:
 centre offsets and log sizes in grid units, objectness and 80 class scores (sigmoided already).
 Decoding and non-maximum suppression run in numpy and OpenCV (``cv2.dnn.NMSBoxes``); only COCO's
-person class (0) is kept. The graph is fully convolutional, so the network input is shaped to the frame
-(``fit_aspect``, default): its longer side ``input_size`` (the release's 416 unless given), the shorter
+person class (0) is kept. The graph is fully convolutional, so the network input can be shaped to the
+frame (``fit_aspect``; the real-time backend's choice, the offline pipeline keeps the square input its
+labelled figures were measured with): its longer side ``input_size`` (the release's 416 unless given), the shorter
 one the frame's rounded up to a multiple of 32 (a 640 x 480 frame is seen at 416 x 320, not pasted on a
 416 x 416 canvas whose bottom quarter is grey: ~0.8 of the time, the same scale). The release fixes
 its input's dimensions in the file, so the file is read as it is and only the declared shapes of its
@@ -106,7 +107,7 @@ class PersonDetector:
 
     ``model``: the ONNX file (None: :func:`resolve_model`; its input fixes the square network
     input S, 416 for the release); ``input_size``: the network input's longer side (a multiple of 32;
-    None: S); ``fit_aspect``: shape the input to the frame (module docstring; False: a square of
+    None: S); ``fit_aspect``: shape the input to the frame (module docstring; False, the default: a square of
     ``input_size`` with the frame pasted top-left, as the release was exported); ``min_score``: objectness x person
     score kept; ``nms_iou``: overlap at which NMS merges two boxes; ``threads``: onnxruntime's
     intra-op threads; ``tile_below``: frames the network would see smaller than this scale are also
@@ -123,7 +124,7 @@ class PersonDetector:
         threads: int = 1,
         tile_below: float = 0.5,
         input_size: int | None = None,
-        fit_aspect: bool = True,
+        fit_aspect: bool = False,
         download: bool = True,
     ) -> None:
         if not 0.0 < min_score < 1.0:
