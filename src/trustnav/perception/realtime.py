@@ -5,23 +5,30 @@ backend's parts (:class:`~trustnav.perception.mediapipe_backend.MediaPipePoseBac
 YOLOX-Nano proposer), split over time instead of run in full on every frame:
 
 - **detection** on every frame (``RealtimeConfig.search_frames`` = k: one frame in k), one
-  onnxruntime thread, ~25-30 ms at 640x480: every person's box is measured on that frame;
+  onnxruntime thread, its input shaped to the frame (416 x 320 for 640 x 480; ``detector_input``
+  sets its longer side): every person's box is measured on that frame;
 - **landmarks** (the BlazePose landmark model that confirms a box and gives the keypoints the cues
-  read) on the two workers: new boxes on the frame they appear (they must be confirmed before they
-  are reported), the largest first, in what the frame's ``max_fits`` leave (at least one), and each
-  followed person again once ``landmark_every`` frames have passed since its last fit, the most
-  overdue first, at most ``max_fits`` a frame, while the detector runs; the others are **carried**: the detector's
-  box of this frame with the keypoints of the last fit moved and scaled onto it
-  (``extra["carried"]``: their cues are those of the last fit). A followed person the detector does
-  not box on a frame is carried by its velocity for up to ``carry_frames`` frames
-  (``extra["predicted"]``: no measurement on this frame);
+  read) on the two workers: new boxes, the largest first, in what the frame's ``max_fits`` leave (at
+  least one), and each followed person again once ``landmark_every`` frames have passed since its
+  last fit, the most overdue first, at most ``max_fits`` a frame (on the region of its last fit moved
+  by its velocity, then its box's own square); the others are **carried**: the detector's box of this
+  frame with the keypoints of the last fit moved and scaled onto it (``extra["carried"]``: their cues
+  are those of the last fit). A followed person the detector does not box on a frame is carried by its
+  velocity for up to ``carry_frames`` frames (``extra["predicted"]``: no measurement on this frame);
+- **pipelined** (``pipelined``, default): the fits chosen on frame k run on the workers while the
+  caller judges frame k (cues, tracking) and this thread detects frame k + 1; frame k + 1 takes them
+  in (its people fitted on frame k, reported fresh on k + 1's boxes), so the two cores work at once
+  instead of the detection waiting for the fits. A new person is reported one frame after the
+  detector first boxes them; a stream's first frame waits for its own fits. ``pipelined=False``: the
+  fits of frame k run beside its own detection and are waited for (the schedule before);
 - the **geometry gate** (:mod:`~trustnav.perception.ground_gate`) on new people, the horizon fitted
   over the stream's people; boxes the landmark model did not confirm are not tried again for
   2 x ``landmark_every`` frames where they stay, boxes under ``min_height_px`` not at all.
 
-Every step is in the frame loop, so an episode is a pure function of its frames (no search thread,
-nothing load-dependent); the latency of a frame is one detection plus at most ``max_fits`` landmark
-fits shared by two workers.
+Every step is decided in the frame loop (a frame waits for the fits of the frame before, never for
+the clock), so an episode is a pure function of its frames (no search thread, nothing
+load-dependent); the latency of a frame is one detection plus what is left of the previous frame's
+fits.
 """
 
 from __future__ import annotations
@@ -57,7 +64,9 @@ class RealtimeConfig:
     every frame, an integer k on one frame in k (the others carry every person by its velocity);
     min_height_px: boxes shorter than this are not fitted (a far crowd's 30-40 px people cost a landmark
     fit each, and the landmark model rarely confirms them); a box the landmark model did not confirm
-    is not tried again for 2 x ``landmark_every`` frames where it stays."""
+    is not tried again for 2 x ``landmark_every`` frames where it stays; pipelined: the fits of a frame
+    run beside the next frame's detection and are reported there (module docstring); detector_input:
+    the detector's input's longer side (a multiple of 32; None: the model's 416)."""
 
     landmark_every: int = 3
     max_fits: int = 3
