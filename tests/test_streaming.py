@@ -173,6 +173,33 @@ def test_pipelined_fits_are_taken_in_on_the_next_frame_and_find_the_in_frame_peo
 
 
 @pytest.mark.slow
+def test_a_person_the_landmark_model_keeps_refusing_is_refitted_less_often(sequences, read_rgb):
+    """REFIT_BACKOFF: after k refits in a row that found no body, a followed person waits landmark_every
+    x 2^min(k, REFIT_BACKOFF) frames for the next, so the frame's fits go to people who can be fitted."""
+    from trustnav.perception import realtime as rtm
+
+    frames = [read_rgb(f) for f in sorted((sequences / "walk_a").iterdir())[:24]]
+    rt = rtm.RealtimePoseBackend(realtime=rtm.RealtimeConfig(landmark_every=2, max_fits=20, carry_frames=30))
+    try:
+        rt(frames[0])
+        followed = list(rt._people)
+        assert followed
+        rt._confirm = lambda *args, **kwargs: None  # from now on the landmark model finds nobody
+        fits: dict[int, list[int]] = {id(f): [f.fitted_at] for f in followed}
+        for f in frames[1:]:
+            rt(f)
+            for q in followed:
+                if fits[id(q)][-1] != q.fitted_at:
+                    fits[id(q)].append(q.fitted_at)
+    finally:
+        rt.close()
+    gaps = [np.diff(v).tolist() for v in fits.values()]
+    assert all(g[:3] == [2, 4, 8] for g in gaps if len(g) >= 3) and any(len(g) >= 3 for g in gaps)
+    assert all(x == 8 for g in gaps for x in g[3:])  # capped at 2^REFIT_BACKOFF
+    assert all(q.failed >= 3 for q in followed if len(fits[id(q)]) >= 4)
+
+
+@pytest.mark.slow
 def test_realtime_backend_answers_the_first_frame_like_the_offline_one(sequences, read_rgb):
     """The first frame: every box the detector proposes is fitted at once (max_fits large), so the
     real-time backend reports the offline backend's people; after reset() the same again."""
