@@ -25,9 +25,11 @@ frame finding nobody), ``false_boxes`` and ``duplicates`` there (the labelled ev
 the track's traits were judged afresh, not carried) and ``load`` (1-minute load average during the
 run). ``--baseline`` adds the offline row of the proposers before issue 35 (BlazePose's tiles, the
 segmentation and HOG searches) in the same run, so speeds compare as ratios; ``--repeat N`` streams
-N times. ``recall_every_frame``, ``first_detection_every_frame_s`` and ``traits_hz_every_frame`` are
-the same figures for the real-time backend handed every frame (the throughput pass, nothing dropped):
-what the design gives where the machine keeps up.
+N times; ``--config SPEC ...`` streams several real-time settings in turn (``default`` or
+RealtimeConfig fields, ``max_fits=2,pipelined=0``: a row each, ``config`` naming it).
+``recall_every_frame``, ``first_detection_every_frame_s`` and ``traits_hz_every_frame`` are the same
+figures for the real-time backend handed every frame (the throughput pass, nothing dropped): what the
+design gives where the machine keeps up.
 """
 
 from __future__ import annotations
@@ -115,15 +117,21 @@ def _people(out: list, estimator: TrustEstimator | None = None, t: float = 0.0) 
 
 
 def run_reference(
-    frames: list, fps: float, model: LookingModel, body: bool = True, proposer: str = "detector", realtime: bool = False
+    frames: list,
+    fps: float,
+    model: LookingModel,
+    body: bool = True,
+    proposer: str = "detector",
+    realtime: bool = False,
+    config: dict | None = None,
 ) -> tuple[list[list[dict]], float]:
     """Every frame through the offline pipeline (``proposer``; or, ``realtime``, the real-time backend
     handed the frames as fast as it takes them: its throughput); per frame its people, and the
     frames per second."""
     if realtime:
-        from trustnav.perception.realtime import RealtimePoseBackend
+        from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend
 
-        backend: MediaPipePoseBackend = RealtimePoseBackend()
+        backend: MediaPipePoseBackend = RealtimePoseBackend(realtime=RealtimeConfig(**(config or {})))
     else:
         backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body, proposer=proposer), video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
@@ -237,13 +245,17 @@ def traits_hz(per_frame: list[list[dict] | None], fps: float, min_s: float = 1.0
     return float(np.median(rates)) if rates else float("nan")
 
 
-def run_stream(frames: list, fps: float, model: LookingModel, realtime: bool) -> dict:
+def run_stream(frames: list, fps: float, model: LookingModel, realtime: bool, config: dict | None = None) -> dict:
     """walk_a streamed at ``fps`` through the StreamingPerceiver (newest frame first, drops counted):
-    the real-time backend, or (``realtime`` False) the offline one, which cannot keep up."""
-    from trustnav.perception.realtime import RealtimePoseBackend
+    the real-time backend (``config``: RealtimeConfig fields), or (``realtime`` False) the offline one,
+    which cannot keep up."""
+    from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend
     from trustnav.perception.streaming import StreamingPerceiver
 
-    backend = RealtimePoseBackend() if realtime else MediaPipePoseBackend(video=True)
+    if realtime:
+        backend: MediaPipePoseBackend = RealtimePoseBackend(realtime=RealtimeConfig(**(config or {})))
+    else:
+        backend = MediaPipePoseBackend(video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     pipeline(frames[0], time=0.0)  # warm-up (graph start-up), then start again
     backend.reset()
@@ -293,15 +305,15 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
         rows.append({"name": "walk_a", "mode": "offline", "proposer": "blazepose", "fps": base_fps,
                      **labelled_scores(base, names), "traits_hz_median": traits_hz(base, fps),
                      "load": round((load0 + os.getloadavg()[0]) / 2, 2)})  # fmt: skip
-    for _ in range(args.repeat):
+    for _, (label, config) in itertools.product(range(args.repeat), args.config):
         load0 = os.getloadavg()[0]
-        every, throughput = run_reference(walk, fps, model, realtime=True)  # every frame, none dropped
+        every, throughput = run_reference(walk, fps, model, realtime=True, config=config)  # every frame
         design = labelled_scores(every, names)
         first_every = compare(reference, every, fps, clear_only=True)["first_detection_s"]
         load_tp = round((load0 + os.getloadavg()[0]) / 2, 2)
-        rt = run_stream(walk, fps, model, realtime=True)
+        rt = run_stream(walk, fps, model, realtime=True, config=config)
         cmp = compare(reference, rt["per_frame"], fps, clear_only=True)
-        rows.append({"name": "walk_a", "mode": "realtime", "stream_fps": fps, "fps": rt["fps"],
+        rows.append({"name": "walk_a", "mode": "realtime", "config": label, "stream_fps": fps, "fps": rt["fps"],
                      "dropped": rt["dropped"], "latency_ms_p95": rt["latency_ms_p95"],
                      **labelled_scores(rt["per_frame"], names),
                      "first_detection_s": cmp["first_detection_s"], "recall_vs_offline": cmp["recall_vs_reference"],
@@ -310,7 +322,7 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
                      "recall_every_frame": design["recall_labelled"],
                      "first_detection_every_frame_s": first_every,
                      "traits_hz_every_frame": traits_hz(every, fps)})  # fmt: skip
-    cols = ["name", "mode", "proposer", "stream_fps", "fps", "throughput_fps", "dropped", "latency_ms_p95",
+    cols = ["name", "mode", "proposer", "config", "stream_fps", "fps", "throughput_fps", "dropped", "latency_ms_p95",
             "recall_labelled", "labelled_people", "false_boxes", "duplicates", "first_detection_s",
             "recall_vs_offline", "traits_hz_median", "load", "load_throughput", "recall_every_frame",
             "first_detection_every_frame_s", "traits_hz_every_frame"]  # fmt: skip
@@ -323,6 +335,25 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
         Path(args.json).write_text(json.dumps(rows, indent=2, default=float))
 
 
+def realtime_config(spec: str) -> tuple[str, dict]:
+    """``--config``: 'default' or comma-separated RealtimeConfig fields (integers; 0/1 for booleans)."""
+    from trustnav.perception.realtime import RealtimeConfig
+
+    if spec == "default":
+        return spec, {}
+    fields = {f for f in RealtimeConfig.__dataclass_fields__}
+    out: dict = {}
+    for item in spec.split(","):
+        key, _, value = item.partition("=")
+        if key not in fields or not value.lstrip("-").isdigit():
+            raise argparse.ArgumentTypeError(
+                f"--config: expected 'default' or FIELD=INT,... of {sorted(fields)}, got {item!r}"
+            )
+        out[key] = bool(int(value)) if key == "pipelined" else int(value)
+    RealtimeConfig(**out)  # validated now
+    return spec, out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
@@ -331,6 +362,9 @@ def main() -> None:
                     help="--realtime: also the offline row with the proposers before issue 35 (BlazePose tiles, "
                     "segmentation, HOG), in the same run")  # fmt: skip
     ap.add_argument("--repeat", type=int, default=1, help="--realtime: streamed runs (the spread of the timings)")
+    ap.add_argument("--config", nargs="+", type=realtime_config, default=[realtime_config("default")],
+                    metavar="SPEC", help="--realtime: the real-time backends streamed, in turn, each 'default' "
+                    "or RealtimeConfig fields as 'max_fits=2,pipelined=0' (ratios in one run)")  # fmt: skip
     ap.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
                     help="who proposes people (MediaPipeConfig.proposer); --scan-frames and --body-search "
                     "apply to blazepose only")  # fmt: skip

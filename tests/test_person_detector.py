@@ -80,7 +80,7 @@ def test_the_environment_variable_is_a_place_the_model_is_found(tmp_path, monkey
 
 
 def test_decode_places_boxes_and_keeps_only_people():
-    grid, stride = det._anchors(416)
+    grid, stride = det._anchors(416, 416)
     out = np.zeros((len(grid), 85), dtype=np.float32)
     # a person centred on cell (10, 20) of stride 8, 40 x 80 network px; a duplicate beside it
     k = 20 * 52 + 10
@@ -108,6 +108,34 @@ def test_the_detector_boxes_the_walkers_of_a_real_frame():
         ious = [_iou(b, label) for b in boxes]
         assert max(ious) >= 0.5
     assert np.all(np.diff(scores) <= 0) and np.all((scores >= d.min_score) & (scores <= 1))
+
+
+@needs_model
+def test_the_input_shaped_to_the_frame_gives_the_square_inputs_boxes():
+    """The release's graph read with its input declared 416 x 416 again is the same model to the bit;
+    shaped to a 640 x 480 frame (416 x 320, no grey quarter) it gives the square input's boxes."""
+    import cv2
+
+    d = det.PersonDetector(fit_aspect=True)
+    assert d.input_shape(480, 640) == (320, 416) and d.input_shape(720, 720) == (416, 416)
+    blob = np.random.default_rng(0).uniform(0, 255, (1, 3, 416, 416)).astype(np.float32)
+    same = det.with_input_shape(MODEL.read_bytes(), 416, 416)
+    square = d._session_for((416, 416))[0]
+    import onnxruntime as ort
+
+    rebuilt = ort.InferenceSession(same, providers=["CPUExecutionProvider"])
+    name = square.get_inputs()[0].name
+    assert np.array_equal(square.run(None, {name: blob})[0], rebuilt.run(None, {name: blob})[0])
+    frame = cv2.imread(str(SHARED / "data" / "sequences" / "walk_a" / "image_00005310_0.png"))[:, :, ::-1].copy()
+    fitted, _ = d(frame)
+    padded, _ = det.PersonDetector()(frame)
+    assert len(fitted) == len(padded)
+    assert all(max(_iou(b, a) for a in fitted) >= 0.9 for b in padded)
+    small = det.PersonDetector(input_size=320, fit_aspect=True)
+    assert small.input_shape(480, 640) == (256, 320)
+    assert len(small(frame)[0]) >= 3
+    with pytest.raises(ValueError, match="input_size must be None"):
+        det.PersonDetector(input_size=300)
 
 
 def _iou(a, b) -> float:

@@ -98,6 +98,11 @@ def test_realtime_backend_config_is_validated():
     for bad in (0, -2, 1.5, True):
         with pytest.raises(ValueError, match="search_frames"):
             RealtimeConfig(search_frames=bad)
+    for bad in (300, 96, True):
+        with pytest.raises(ValueError, match="detector_input"):
+            RealtimeConfig(detector_input=bad)
+    with pytest.raises(ValueError, match="pipelined"):
+        RealtimeConfig(pipelined=1)
 
 
 def test_modelled_search_spans_the_frames_of_its_seconds():
@@ -136,6 +141,62 @@ def test_realtime_backend_is_deterministic_and_refits_each_person_within_its_bud
     assert any(c for frame in runs[0] for *_, c in frame)  # people carried between their fits
     assert any(not c for frame in runs[0][1:] for *_, c in frame)  # and refitted
     assert max(a for frame in ages for a in frame) <= 8  # nobody waits long for a refit
+
+
+@pytest.mark.slow
+def test_pipelined_fits_are_taken_in_on_the_next_frame_and_find_the_in_frame_people(sequences, read_rgb):
+    """Pipelined (the default): the fits chosen on frame k run while frame k + 1 is detected and are
+    reported there (fresh, not carried) on that frame's boxes; the stream's first frame waits for its
+    own fits. The people >= 80 px tall are those the in-frame schedule reports (a new one a frame later)."""
+    from trustnav.perception.realtime import RealtimeConfig, RealtimePoseBackend
+    from trustnav.perception.types import box_iou
+
+    frames = [read_rgb(f) for f in sorted((sequences / "walk_a").iterdir())[:8]]
+    found = {}
+    for pipelined in (True, False):
+        rt = RealtimePoseBackend(realtime=RealtimeConfig(pipelined=pipelined))
+        try:
+            out = []
+            for k, f in enumerate(frames):
+                people = rt(f)
+                fresh = [q for q in rt._people if not q.person.extra.get("carried")]
+                assert fresh or k > 0
+                lag = 1 if pipelined and k > 0 else 0
+                assert all(q.fitted_at == k - lag for q in fresh)
+                out.append([p.bbox for p in people if p.bbox[3] - p.bbox[1] >= 80])
+            found[pipelined] = out
+        finally:
+            rt.close()
+    # a new person is reported one frame later; the first frame and, once settled, the rest agree
+    for a, b in [*zip(found[True], found[False], strict=True)][:1] + [*zip(found[True], found[False], strict=True)][4:]:
+        assert len(a) == len(b) and all(max(box_iou(p, q) for q in b) > 0.7 for p in a)
+
+
+@pytest.mark.slow
+def test_a_person_the_landmark_model_keeps_refusing_is_refitted_less_often(sequences, read_rgb):
+    """REFIT_BACKOFF: after k refits in a row that found no body, a followed person waits landmark_every
+    x 2^min(k, REFIT_BACKOFF) frames for the next, so the frame's fits go to people who can be fitted."""
+    from trustnav.perception import realtime as rtm
+
+    frames = [read_rgb(f) for f in sorted((sequences / "walk_a").iterdir())[:24]]
+    rt = rtm.RealtimePoseBackend(realtime=rtm.RealtimeConfig(landmark_every=2, max_fits=20, carry_frames=30))
+    try:
+        rt(frames[0])
+        followed = list(rt._people)
+        assert followed
+        rt._confirm = lambda *args, **kwargs: None  # from now on the landmark model finds nobody
+        fits: dict[int, list[int]] = {id(f): [f.fitted_at] for f in followed}
+        for f in frames[1:]:
+            rt(f)
+            for q in followed:
+                if fits[id(q)][-1] != q.fitted_at:
+                    fits[id(q)].append(q.fitted_at)
+    finally:
+        rt.close()
+    gaps = [np.diff(v).tolist() for v in fits.values()]
+    assert all(g[:3] == [2, 4, 8] for g in gaps if len(g) >= 3) and any(len(g) >= 3 for g in gaps)
+    assert all(x == 8 for g in gaps for x in g[3:])  # capped at 2^REFIT_BACKOFF
+    assert all(q.failed >= 3 for q in followed if len(fits[id(q)]) >= 4)
 
 
 @pytest.mark.slow

@@ -5,7 +5,14 @@ float32 (S = 416 in the release): the frame in BGR, 0-255, resized with its aspe
 top-left corner of a canvas filled with 114. Output 1 x A x 85 per anchor over strides 8, 16, 32:
 centre offsets and log sizes in grid units, objectness and 80 class scores (sigmoided already).
 Decoding and non-maximum suppression run in numpy and OpenCV (``cv2.dnn.NMSBoxes``); only COCO's
-person class (0) is kept. onnxruntime runs it on one intra-op thread by default (on two cores the
+person class (0) is kept. The graph is fully convolutional, so the network input can be shaped to the
+frame (``fit_aspect``; the real-time backend's choice, the offline pipeline keeps the square input its
+labelled figures were measured with): its longer side ``input_size`` (the release's 416 unless given), the shorter
+one the frame's rounded up to a multiple of 32 (a 640 x 480 frame is seen at 416 x 320, not pasted on a
+416 x 416 canvas whose bottom quarter is grey: ~0.8 of the time, the same scale). The release fixes
+its input's dimensions in the file, so the file is read as it is and only the declared shapes of its
+input and output are rewritten in memory before onnxruntime loads it (:func:`with_input_shape`).
+onnxruntime runs it on one intra-op thread by default (on two cores the
 frame loop and the landmark model need the other).
 
 The model file is found as the LOOKING weights are (:func:`resolve_model`): a path given; else
@@ -99,7 +106,9 @@ class PersonDetector:
     """YOLOX-Nano person boxes for an RGB frame (module docstring).
 
     ``model``: the ONNX file (None: :func:`resolve_model`; its input fixes the square network
-    input S, 416 for the release); ``min_score``: objectness x person
+    input S, 416 for the release); ``input_size``: the network input's longer side (a multiple of 32;
+    None: S); ``fit_aspect``: shape the input to the frame (module docstring; False, the default: a square of
+    ``input_size`` with the frame pasted top-left, as the release was exported); ``min_score``: objectness x person
     score kept; ``nms_iou``: overlap at which NMS merges two boxes; ``threads``: onnxruntime's
     intra-op threads; ``tile_below``: frames the network would see smaller than this scale are also
     searched in square windows (:meth:`windows`). Calling it returns (boxes (N, 4) [x1, y1, x2, y2]
@@ -114,6 +123,8 @@ class PersonDetector:
         nms_iou: float = 0.45,
         threads: int = 1,
         tile_below: float = 0.5,
+        input_size: int | None = None,
+        fit_aspect: bool = False,
         download: bool = True,
     ) -> None:
         if not 0.0 < min_score < 1.0:
@@ -124,6 +135,15 @@ class PersonDetector:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
         if not 0.0 <= tile_below <= 1.0:
             raise ValueError(f"tile_below must be in [0, 1] (0: the whole frame only), got {tile_below!r}")
+        if input_size is not None and (
+            isinstance(input_size, bool)
+            or not isinstance(input_size, int)
+            or input_size % 32
+            or not 64 <= input_size <= 1280
+        ):
+            raise ValueError(
+                f"input_size must be None (the model's) or a multiple of 32 in [64, 1280], got {input_size!r}"
+            )
         self.tile_below = float(tile_below)
         self.path = resolve_model(model, download=download)
         self.min_score = float(min_score)
@@ -133,8 +153,10 @@ class PersonDetector:
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1
         options.log_severity_level = 3
+        self._options = options
         try:
-            self._session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+            self._bytes = self.path.read_bytes()
+            self._session = ort.InferenceSession(self._bytes, options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for a bad file
             first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
             raise ValueError(
@@ -148,9 +170,31 @@ class PersonDetector:
                 f"(YOLOX), got {[tuple(i.shape) for i in inputs]}; {MODEL_HINT}"
             )
         self._input = inputs[0].name
-        self.input_size = int(shape[2])
-        self._grid, self._stride = _anchors(self.input_size)
+        self.model_size = int(shape[2])
+        self.input_size = int(input_size or self.model_size)
+        self.fit_aspect = bool(fit_aspect)
+        # one session per network input shape (H, W), with its anchors
+        self._sessions: dict[tuple[int, int], tuple[Any, NDArray[np.float64], NDArray[np.float64]]] = {
+            (self.model_size, self.model_size): (self._session, *_anchors(self.model_size, self.model_size))
+        }
         self.last_seconds = 0.0
+
+    def input_shape(self, h: int, w: int) -> tuple[int, int]:
+        """The network input (rows, columns) for an h x w image: its longer side ``input_size``, the other
+        the image's at that scale rounded up to a multiple of 32 (``fit_aspect``), else a square."""
+        s = self.input_size
+        if not self.fit_aspect:
+            return s, s
+        ratio = min(s / h, s / w)
+        return min(s, 32 * math.ceil(h * ratio / 32 - 1e-9)), min(s, 32 * math.ceil(w * ratio / 32 - 1e-9))
+
+    def _session_for(self, shape: tuple[int, int]) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
+        if shape not in self._sessions:
+            ort = _load_onnxruntime()
+            model = with_input_shape(self._bytes, *shape)
+            session = ort.InferenceSession(model, self._options, providers=["CPUExecutionProvider"])
+            self._sessions[shape] = (session, *_anchors(*shape))
+        return self._sessions[shape]
 
     def windows(self, h: int, w: int) -> list[tuple[int, int, int, int]]:
         """Where the network looks: the whole frame, and where that shrinks the frame below
@@ -195,13 +239,15 @@ class PersonDetector:
         s = self.input_size
         ratio = min(s / h, s / w)
         nh, nw = max(1, round(h * ratio)), max(1, round(w * ratio))
-        canvas = np.full((s, s, 3), PAD_VALUE, dtype=np.uint8)
+        shape = self.input_shape(h, w)
+        session, grid, stride = self._session_for(shape)
+        canvas = np.full((*shape, 3), PAD_VALUE, dtype=np.uint8)
         canvas[:nh, :nw] = cv2.resize(crop, (nw, nh), interpolation=cv2.INTER_AREA)[:, :, ::-1]  # RGB -> BGR
         blob = canvas.transpose(2, 0, 1)[None].astype(np.float32)
-        out = self._session.run(None, {self._input: blob})[0][0]
-        if out.ndim != 2 or out.shape != (len(self._grid), 85):
-            raise ValueError(f"person detector model {self.path}: output {out.shape}, expected ({len(self._grid)}, 85)")
-        boxes, scores = decode(out, self._grid, self._stride, ratio, (w, h), self.min_score, self.nms_iou)
+        out = session.run(None, {self._input: blob})[0][0]
+        if out.ndim != 2 or out.shape != (len(grid), 85):
+            raise ValueError(f"person detector model {self.path}: output {out.shape}, expected ({len(grid)}, 85)")
+        boxes, scores = decode(out, grid, stride, ratio, (w, h), self.min_score, self.nms_iou)
         if (x0, y0, x1, y1) != (0, 0, frame.shape[1], frame.shape[0]) and len(boxes):
             # a box cut by a window's inner edge is a part of a person the whole frame or the next window holds
             inner = ((boxes[:, 0] <= 1) & (x0 > 0)) | ((boxes[:, 2] >= w - 2) & (x1 < frame.shape[1]))
@@ -210,14 +256,13 @@ class PersonDetector:
         return boxes + np.array([x0, y0, x0, y0], dtype=np.float64), scores
 
 
-def _anchors(size: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _anchors(rows: int, cols: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Grid cells (A, 2) and their strides (A, 1) in the detector's anchor order."""
     grids, strides = [], []
     for stride in STRIDES:
-        n = size // stride
-        ys, xs = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        ys, xs = np.meshgrid(np.arange(rows // stride), np.arange(cols // stride), indexing="ij")
         grids.append(np.stack([xs.ravel(), ys.ravel()], axis=1))
-        strides.append(np.full((n * n, 1), stride))
+        strides.append(np.full((xs.size, 1), stride))
     return np.concatenate(grids).astype(np.float64), np.concatenate(strides).astype(np.float64)
 
 
@@ -252,3 +297,98 @@ def decode(
     idx = np.asarray(idx, dtype=int).reshape(-1)
     idx = idx[np.argsort(-scores[idx], kind="stable")]
     return boxes[idx], scores[idx]
+
+
+# The ONNX file's declared shapes, rewritten on the protobuf wire format (no onnx package needed):
+# ModelProto.graph = 7; GraphProto.input = 11, output = 12, value_info = 13; ValueInfoProto.type = 2;
+# TypeProto.tensor_type = 1; TypeProto.Tensor.shape = 2; TensorShapeProto.dim = 1; Dimension.dim_value = 1.
+
+
+def _varint(data: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = data[i]
+        i += 1
+        value |= (byte & 0x7F) << shift
+        shift += 7
+        if byte < 0x80:
+            return value, i
+
+
+def _encode_varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        low, value = value & 0x7F, value >> 7
+        out.append(low | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def _fields(data: bytes) -> list[tuple[int, int, bytes]]:
+    """A protobuf message's fields in order: (number, wire type, raw payload)."""
+    out, i = [], 0
+    while i < len(data):
+        tag, i = _varint(data, i)
+        number, wire = tag >> 3, tag & 7
+        if wire == 0:
+            _, j = _varint(data, i)
+        elif wire == 1:
+            j = i + 8
+        elif wire == 5:
+            j = i + 4
+        elif wire == 2:
+            size, i = _varint(data, i)
+            j = i + size
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wire}")
+        if j > len(data):
+            raise ValueError("truncated protobuf message")
+        out.append((number, wire, data[i:j]))
+        i = j
+    return out
+
+
+def _join(fields: list[tuple[int, int, bytes]]) -> bytes:
+    out = bytearray()
+    for number, wire, raw in fields:
+        out += _encode_varint(number << 3 | wire)
+        if wire == 2:
+            out += _encode_varint(len(raw))
+        out += raw
+    return bytes(out)
+
+
+def _with_dims(value_info: bytes, dims: list[int]) -> bytes:
+    """A ValueInfoProto with its tensor's shape replaced by ``dims``."""
+    shape = _join([(1, 2, _join([(1, 0, _encode_varint(d))])) for d in dims])
+
+    def tensor(raw: bytes) -> bytes:
+        return _join([f for f in _fields(raw) if f[0] != 2] + [(2, 2, shape)])
+
+    def typ(raw: bytes) -> bytes:
+        return _join([(n, w, tensor(r) if n == 1 else r) for n, w, r in _fields(raw)])
+
+    return _join([(n, w, typ(r) if n == 2 else r) for n, w, r in _fields(value_info)])
+
+
+def with_input_shape(model: bytes, rows: int, cols: int) -> bytes:
+    """The YOLOX ONNX model ``model`` (bytes) declared for a 1 x 3 x rows x cols input: the input's and
+    output's shapes rewritten (the output 1 x A x 85, A the anchors of strides 8, 16, 32) and the stored
+    intermediate shapes dropped (onnxruntime infers them). The weights and operators are untouched."""
+    if rows % 32 or cols % 32:
+        raise ValueError(f"the detector's input must be a multiple of 32 each way, got {rows} x {cols}")
+    anchors = sum((rows // s) * (cols // s) for s in STRIDES)
+    top = _fields(model)
+    graphs = [raw for number, wire, raw in top if number == 7 and wire == 2]
+    if len(graphs) != 1:
+        raise ValueError("not an ONNX model with one graph")
+    graph = []
+    for number, wire, raw in _fields(graphs[0]):
+        if number == 13:
+            continue
+        if number == 11:
+            raw = _with_dims(raw, [1, 3, rows, cols])
+        elif number == 12:
+            raw = _with_dims(raw, [1, anchors, 85])
+        graph.append((number, wire, raw))
+    return _join([(n, w, _join(graph) if n == 7 else r) for n, w, r in top])

@@ -5,23 +5,31 @@ backend's parts (:class:`~trustnav.perception.mediapipe_backend.MediaPipePoseBac
 YOLOX-Nano proposer), split over time instead of run in full on every frame:
 
 - **detection** on every frame (``RealtimeConfig.search_frames`` = k: one frame in k), one
-  onnxruntime thread, ~25-30 ms at 640x480: every person's box is measured on that frame;
+  onnxruntime thread, its input shaped to the frame (416 x 320 for 640 x 480; ``detector_input``
+  sets its longer side): every person's box is measured on that frame;
 - **landmarks** (the BlazePose landmark model that confirms a box and gives the keypoints the cues
-  read) on the two workers: new boxes on the frame they appear (they must be confirmed before they
-  are reported), the largest first, in what the frame's ``max_fits`` leave (at least one), and each
-  followed person again once ``landmark_every`` frames have passed since its last fit, the most
-  overdue first, at most ``max_fits`` a frame, while the detector runs; the others are **carried**: the detector's
-  box of this frame with the keypoints of the last fit moved and scaled onto it
-  (``extra["carried"]``: their cues are those of the last fit). A followed person the detector does
-  not box on a frame is carried by its velocity for up to ``carry_frames`` frames
-  (``extra["predicted"]``: no measurement on this frame);
+  read) on the two workers: new boxes, the largest first, in what the frame's ``max_fits`` leave (at
+  least one), and each followed person again once ``landmark_every`` frames have passed since its
+  last fit, the most overdue first, at most ``max_fits`` a frame (on the region of its last fit moved
+  by its velocity, then its box's own square; one whose refits keep finding no body waits longer,
+  :data:`REFIT_BACKOFF`); the others are **carried**: the detector's box of this
+  frame with the keypoints of the last fit moved and scaled onto it (``extra["carried"]``: their cues
+  are those of the last fit). A followed person the detector does not box on a frame is carried by its
+  velocity for up to ``carry_frames`` frames (``extra["predicted"]``: no measurement on this frame);
+- **pipelined** (``pipelined``, default): the fits chosen on frame k run on the workers while the
+  caller judges frame k (cues, tracking) and this thread detects frame k + 1; frame k + 1 takes them
+  in (its people fitted on frame k, reported fresh on k + 1's boxes), so the two cores work at once
+  instead of the detection waiting for the fits. A new person is reported one frame after the
+  detector first boxes them; a stream's first frame waits for its own fits. ``pipelined=False``: the
+  fits of frame k run beside its own detection and are waited for (the schedule before);
 - the **geometry gate** (:mod:`~trustnav.perception.ground_gate`) on new people, the horizon fitted
   over the stream's people; boxes the landmark model did not confirm are not tried again for
   2 x ``landmark_every`` frames where they stay, boxes under ``min_height_px`` not at all.
 
-Every step is in the frame loop, so an episode is a pure function of its frames (no search thread,
-nothing load-dependent); the latency of a frame is one detection plus at most ``max_fits`` landmark
-fits shared by two workers.
+Every step is decided in the frame loop (a frame waits for the fits of the frame before, never for
+the clock), so an episode is a pure function of its frames (no search thread, nothing
+load-dependent); the latency of a frame is one detection plus what is left of the previous frame's
+fits.
 """
 
 from __future__ import annotations
@@ -30,19 +38,22 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from trustnav.perception.detector import PersonDetector
 from trustnav.perception.ground_gate import Rejection, gate_boxes
 from trustnav.perception.mediapipe_backend import (
     MediaPipeConfig,
     MediaPipePoseBackend,
+    box_region,
     one_box_per_person,
 )
 from trustnav.perception.types import Person, box_iou, check_frame
 
-__all__ = ["SEARCH_SECONDS", "RealtimeConfig", "RealtimePoseBackend", "modelled_search_frames"]
+__all__ = ["REFIT_BACKOFF", "SEARCH_SECONDS", "RealtimeConfig", "RealtimePoseBackend", "modelled_search_frames"]
 
 
 @dataclass(frozen=True)
@@ -54,13 +65,17 @@ class RealtimeConfig:
     every frame, an integer k on one frame in k (the others carry every person by its velocity);
     min_height_px: boxes shorter than this are not fitted (a far crowd's 30-40 px people cost a landmark
     fit each, and the landmark model rarely confirms them); a box the landmark model did not confirm
-    is not tried again for 2 x ``landmark_every`` frames where it stays."""
+    is not tried again for 2 x ``landmark_every`` frames where it stays; pipelined: the fits of a frame
+    run beside the next frame's detection and are reported there (module docstring); detector_input:
+    the detector's input's longer side (a multiple of 32; None: the model's 416)."""
 
     landmark_every: int = 3
     max_fits: int = 3
     carry_frames: int = 4
     search_frames: int | None = None
     min_height_px: float = 40.0
+    pipelined: bool = True
+    detector_input: int | None = None
 
     def __post_init__(self) -> None:
         if self.search_frames is not None and (
@@ -73,6 +88,18 @@ class RealtimeConfig:
             raise ValueError(f"max_fits must be an integer in [0, 20], got {self.max_fits!r}")
         if not 0.0 <= self.min_height_px <= 1000.0:
             raise ValueError(f"min_height_px must be in [0, 1000], got {self.min_height_px!r}")
+        if not isinstance(self.pipelined, bool):
+            raise ValueError(f"pipelined must be True or False, got {self.pipelined!r}")
+        if self.detector_input is not None and (
+            isinstance(self.detector_input, bool)
+            or not isinstance(self.detector_input, int)
+            or self.detector_input % 32
+            or not 128 <= self.detector_input <= 1280
+        ):
+            raise ValueError(
+                f"detector_input must be None (the model's 416) or a multiple of 32 in [128, 1280], "
+                f"got {self.detector_input!r}"
+            )
         if not isinstance(self.carry_frames, int) or not 0 <= self.carry_frames <= 100:
             raise ValueError(f"carry_frames must be an integer in [0, 100], got {self.carry_frames!r}")
 
@@ -81,6 +108,11 @@ class RealtimeConfig:
 #: onnxruntime, 22-31 ms at 640x480 quiet; with the landmark fits beside it), the default of
 #: :func:`modelled_search_frames`.
 SEARCH_SECONDS = 0.05
+
+#: A followed person whose last k refits found no body waits ``landmark_every`` x 2^min(k, this)
+#: frames for the next (pipelined schedule): the frame's fits go to people the landmark model can fit
+#: (on walk_a traits refreshed 4.0 times a second, median, instead of 3.57; the same labelled recall).
+REFIT_BACKOFF = 2
 
 
 def modelled_search_frames(fps: float, search_seconds: float = SEARCH_SECONDS) -> int:
@@ -102,6 +134,8 @@ class _Followed:
     seen_at: int  # last frame the detector boxed it
     velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))  # box centre, px per frame
     person: Person | None = None
+    fresh_at: int = -1  # frame on which its latest accepted fit was reported (pipelined: one frame after it)
+    failed: int = 0  # refits in a row that found no body
 
 
 class RealtimePoseBackend(MediaPipePoseBackend):
@@ -118,16 +152,37 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         # scoped filter is not thread-safe, so this one message is ignored for the process
         warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
         self.realtime = realtime or RealtimeConfig()
+        # the network input shaped to the frame (416 x 320 for 640 x 480: ~0.8 of the square's time)
+        self.detector = PersonDetector(
+            config.detector_model,
+            min_score=config.detector_min_score,
+            input_size=self.realtime.detector_input,
+            fit_aspect=True,
+        )
         self._people: list[_Followed] = []
         self._unconfirmed: list[tuple[int, NDArray[np.float64]]] = []  # (frame, box) the landmarks refused
         self._fits: list[int] = []
         self._detect_s: list[float] = []
+        # pipelined: (frame index, jobs, futures) of the fits submitted on the latest frame
+        self._batch: tuple[int, list[tuple], list[Any]] | None = None
 
     def reset(self) -> None:
         """Forget the people followed and the fitted horizon (call between streams)."""
+        self._drop_batch()
         self._people = []
         self._unconfirmed = []
         super().reset()
+
+    def close(self) -> None:
+        """Wait for the fits in flight, then stop the workers and release the graphs."""
+        self._drop_batch()
+        super().close()
+
+    def _drop_batch(self) -> None:
+        if self._batch is not None:
+            for fut in self._batch[2]:
+                fut.exception()  # waits; the graphs go back to the pool
+        self._batch = None
 
     @property
     def stats(self) -> dict[str, float]:
@@ -145,6 +200,8 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         """People in ``frame`` (H x W x 3 uint8 RGB): detected boxes, fitted or carried keypoints."""
         assert self.detector is not None
         frame = check_frame(frame)
+        if self.realtime.pipelined:
+            return self._pipelined(frame)
         h, w = frame.shape[:2]
         index = self._frame_index
         cfg = self.realtime
@@ -224,6 +281,108 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._frame_index += 1
         return [f.person for f in self._people]
 
+    def _pipelined(self, frame: NDArray[np.uint8]) -> list[Person]:
+        """``RealtimeConfig.pipelined``: the landmark fits chosen on frame k run on the two workers while the
+        caller judges frame k and this thread detects frame k + 1; they are taken in on frame k + 1, the
+        fitted keypoints moved onto that frame's boxes (module docstring)."""
+        assert self.detector is not None
+        h, w = frame.shape[:2]
+        index = self._frame_index
+        cfg = self.realtime
+        t0 = time.perf_counter()
+        for f in self._people:
+            f.box = _shifted(f.box, f.velocity, w, h)
+        detect = cfg.search_frames is None or index % cfg.search_frames == 0 or not self._people
+        boxes, scores = self.detector(frame) if detect else (np.zeros((0, 4)), np.zeros(0))
+        t1 = time.perf_counter()
+        if detect:
+            self._detect_s.append(t1 - t0)
+        rejected: list[Rejection] = []
+        self._people += self._take_batch(index, w, h, rejected)  # the fits of the frame before
+        t2 = time.perf_counter()
+        matched, new = _associate([f.box for f in self._people], boxes)
+        for i, j in matched.items():
+            f = self._people[i]
+            centre = _centre(boxes[j]) - _centre(f.box) + f.velocity
+            f.velocity = 0.5 * f.velocity + 0.5 * _capped(centre, boxes[j])
+            f.box, f.seen_at = boxes[j].astype(np.float64), index
+        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < 2 * cfg.landmark_every]
+        new = [
+            j for j in new
+            if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
+            and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
+        ]  # fmt: skip
+        self._people = [f for f in self._people if index - f.seen_at <= cfg.carry_frames]
+        # this frame's fits: the most overdue followed people, then new boxes, the largest first, in what
+        # is left of max_fits (at least one)
+        due = sorted(
+            (
+                f
+                for f in self._people
+                if index - f.fitted_at >= cfg.landmark_every * (1 << min(f.failed, REFIT_BACKOFF))
+            ),
+            key=lambda f: f.fitted_at,
+        )[: cfg.max_fits]
+        new.sort(key=lambda j: boxes[j][1] - boxes[j][3])
+        new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
+        jobs: list[tuple] = []
+        for f in due:
+            roi = f.roi.copy()
+            roi[:2] += f.velocity * (index - f.fitted_at)
+            seen = f.seen_at == index
+            # the region its last fit gives, then (where the detector boxed it now) its box's own square:
+            # some people (one seen from behind) the first does not fit in most frames, the second does
+            rois = np.vstack([roi, box_region(f.box, self.config.region_scale)]) if seen else roi[None, :]
+            jobs.append((f, rois, f.fitted.score, f.box.copy(), seen))
+        jobs += [(None, self._regions(boxes[j], []), float(scores[j]), boxes[j].astype(np.float64), True) for j in new]
+        image = frame.copy()  # the caller may reuse its buffer while the workers read this one
+        futures = [
+            self._submit(lambda g, job: self._confirm(g, image, job[1], job[2], job[3], w, h), job) for job in jobs
+        ]
+        self._batch = (index, jobs, futures)
+        if not self._people:  # nobody followed (a stream's first frame): this frame waits for its fits
+            self._people = self._take_batch(index, w, h, rejected)
+        for f in self._people:
+            f.person = _carried(f, index, w, h)
+        keep = one_box_per_person([f.person for f in self._people], self.config.duplicate_iou)
+        self._people = [self._people[i] for i in keep]
+        self._fits.append(len(jobs))
+        self.last_rejections = rejected
+        self.last_timing = {"detection": t1 - t0, "landmarks": t2 - t1}
+        self._frame_index += 1
+        return [f.person for f in self._people]
+
+    def _take_batch(self, index: int, w: int, h: int, rejected: list[Rejection]) -> list[_Followed]:
+        """Wait for the fits submitted on the frame before; refits update their person (a failed one
+        keeps its last keypoints and is tried again in ``landmark_every`` frames), confirmed new boxes
+        that pass the geometry gate are returned as people followed from now on."""
+        if self._batch is None:
+            return []
+        at, jobs, futures = self._batch
+        self._batch = None
+        fresh: list[_Followed] = []
+        for (f, _, score, box, seen), fut in zip(jobs, futures, strict=True):
+            res = fut.result()
+            if f is not None:  # a refit
+                f.fitted_at = at
+                f.failed += 1
+                if res is not None and box_iou(res[3].bbox, box) >= 0.3:
+                    bbox = box if seen else res[3].bbox  # where the detector boxed the person, its box
+                    f.fitted, f.roi = replace(res[3], bbox=np.asarray(bbox, dtype=np.float64).copy()), res[1]
+                    f.fresh_at, f.failed = index, 0
+            elif res is None:
+                self._unconfirmed.append((at, box))
+                rejected.append(Rejection(tuple(map(float, box)), score, "the landmark model found no upright person"))
+            else:
+                fresh.append(_Followed(res[3], at, res[1], box.copy(), at, fresh_at=index))
+        if fresh and self.config.geometry_gate:
+            ok, gated = gate_boxes([f.box for f in fresh], [f.fitted.score for f in fresh], (w, h),
+                                   camera=self.camera, fit=self.horizon)  # fmt: skip
+            rejected += gated
+            self._unconfirmed += [(at, np.asarray(r.bbox)) for r in gated]
+            fresh = [fresh[i] for i in ok]
+        return fresh
+
 
 def _associate(predicted: list[NDArray[np.float64]], boxes: NDArray[np.float64]) -> tuple[dict[int, int], list[int]]:
     """Followed person -> this frame's box (Hungarian on IoU, >= 0.3), and the boxes nobody follows."""
@@ -263,7 +422,8 @@ def _carried(f: _Followed, index: int, w: int, h: int) -> Person:
     scaled from that fit's box onto this frame's box (``extra["carried"]``; ``extra["predicted"]``
     when the detector did not box the person on this frame either)."""
     p = f.fitted
-    if f.fitted_at == index and np.allclose(p.bbox, f.box):
+    fresh = f.fresh_at == index or (f.fitted_at == index and np.allclose(p.bbox, f.box))
+    if fresh and np.allclose(p.bbox, f.box):
         return p
     old, new = p.bbox, f.box
     sx = (new[2] - new[0]) / max(old[2] - old[0], 1e-6)
@@ -278,7 +438,8 @@ def _carried(f: _Followed, index: int, w: int, h: int) -> Person:
         lm = extra["blazepose"].copy()
         lm[:, :2] = move(lm[:, :2])
         extra["blazepose"] = lm
-    extra["carried"] = True
+    if not fresh:
+        extra["carried"] = True
     if f.seen_at != index:
         extra["predicted"] = True
     return Person(bbox=new.copy(), keypoints=move(p.keypoints), confidences=p.confidences, score=p.score, extra=extra)
