@@ -11,6 +11,7 @@ identity switches.
     python benchmarks/perceived_drive.py                 # 20 seeds, keypoints, perceived (~1 min)
     python benchmarks/perceived_drive.py --seeds 5 --state true
     python benchmarks/perceived_drive.py --render        # adds Case I in render mode (~1 min more)
+    python benchmarks/perceived_drive.py --render --render-seeds 3 --rate 10   # 3 render runs at 10 frames/s
     python benchmarks/perceived_drive.py --caution on    # with the trust-aware speed bound (issue 34)
 """
 
@@ -127,7 +128,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--seeds", type=int, default=20, help="seeds per case (default 20)")
     ap.add_argument("--state", choices=STATES, default="perceived", help="controller's pedestrian states")
-    ap.add_argument("--render", action="store_true", help="also Case I in render mode (seed 0)")
+    ap.add_argument("--render", action="store_true", help="also Case I in render mode (--render-seeds seeds)")
+    ap.add_argument("--render-seeds", type=int, default=1, help="render-mode seeds from --first-seed (default 1)")
+    ap.add_argument("--skip-keypoints", action="store_true", help="only the render runs (with --render)")
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
     ap.add_argument("--caution", choices=("on", "off"), help="the trust-aware speed bound (default: the presets', off)")
     ap.add_argument("--json", help="write the summary rows to this file")
@@ -137,11 +140,15 @@ def main(argv: list[str] | None = None) -> int:
     caution = None if args.caution is None else args.caution == "on"
     if not 1 <= args.seeds <= 1000:
         ap.error(f"--seeds must be in [1, 1000], got {args.seeds}")
+    if not 1 <= args.render_seeds <= 100:
+        ap.error(f"--render-seeds must be in [1, 100], got {args.render_seeds}")
+    if args.skip_keypoints and not args.render:
+        ap.error("--skip-keypoints needs --render")
     if args.rate is not None and not 0 < args.rate <= 60:
         ap.error(f"--rate must be in (0, 60] frames per second, got {args.rate:g}")
     rows = []
     t0 = time.perf_counter()
-    for name, gap in (("case-1", 1.0), ("case-2", 0.5)):
+    for name, gap in () if args.skip_keypoints else (("case-1", 1.0), ("case-2", 0.5)):
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         runs = _case_runs(name, seeds, args.state, caution=caution, capture_rate=args.rate,
                           error_correlation=args.error_correlation)  # fmt: skip
@@ -150,16 +157,20 @@ def main(argv: list[str] | None = None) -> int:
         from trustnav.sim.driving.sensing import make_render_sensing
 
         sc = load_drive_scenario("case-1")
-        renderer, pipeline = make_render_sensing(sc)
-        try:
-            entries = _case_runs("case-1", range(args.first_seed, args.first_seed + 1), args.state, "render",
-                                 caution=caution, renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
-                                 error_correlation=args.error_correlation)  # fmt: skip
-        finally:
-            renderer.close()
-            pipeline.backend.close()
+        entries = []
+        for seed in range(args.first_seed, args.first_seed + args.render_seeds):
+            # a fresh renderer and pipeline per run (image tracker, video mode at the rate)
+            renderer, pipeline = make_render_sensing(sc, capture_rate=args.rate)
+            try:
+                entries += _case_runs("case-1", range(seed, seed + 1), args.state, "render", caution=caution,
+                                      renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
+                                      error_correlation=args.error_correlation)  # fmt: skip
+            finally:
+                renderer.close()
+                pipeline.backend.close()
         row = summarise("case-1 render", entries, 1.0)
-        row["detection_recall"] = entries[0]["runs"]["both"].get("detection_recall")
+        recall = [e["runs"]["both"].get("detection_recall") for e in entries]
+        row["detection_recall"] = None if None in recall else round(float(np.mean(recall)), 3)
         rows.append(row)
     rate = f"{args.rate:g} frames/s" if args.rate else "the scenario's camera rate"
     print(f"state = {args.state}, {args.seeds} seeds, {rate}, {time.perf_counter() - t0:.0f} s")

@@ -167,10 +167,36 @@ def test_error_correlation_follows_the_sensing_and_an_explicit_value_wins():
     from trustnav.sim.driving.world import SensingSpec
 
     assert SensingSpec().tracker(keypoints=True).error_correlation_s == 0.1
-    assert SensingSpec().tracker(keypoints=False).error_correlation_s == 1.0
+    render = SensingSpec().tracker(keypoints=False)
+    assert (render.error_correlation_s, render.error_shared) == (2.2, 0.66)
     assert SensingSpec(error_correlation_s=0.5).tracker(keypoints=True).error_correlation_s == 0.5
+    assert SensingSpec(error_shared=0.3).tracker(keypoints=False).error_shared == 0.3
     with pytest.raises(ValueError, match="error_correlation_s"):
         SensingSpec(error_correlation_s=-1.0)
+    with pytest.raises(ValueError, match="error_shared"):
+        SensingSpec(error_shared=1.5)
+    # the detector's per-person bias of the feet is modelled for rendered frames only
+    assert SensingSpec().localiser(keypoints=True).foot_sigma == 0.0
+    assert SensingSpec().localiser().foot_sigma > 0.0
+
+
+def test_correlated_error_factor_is_the_variance_inflation_of_linearly_fading_correlation():
+    """The factor is 1 + 2 sum_k r(k dt) with r(t) = shared (1 - t / tau)+: brute force at several
+    rates; shared 1 counts the frames of one span as one placement (factor ~ tau / dt); shared 0,
+    dt >= tau or a first frame: 1."""
+    from trustnav.perception.world_tracking import correlated_error_factor
+
+    for tau, shared in ((1.0, 1.0), (2.2, 0.66), (0.5, 0.2)):
+        for rate in (1.0, 2.0, 3.0, 10.0, 30.0):
+            dt = 1.0 / rate
+            lags = np.arange(1, 1000) * dt
+            brute = 1.0 + 2.0 * shared * float(np.clip(1.0 - lags / tau, 0.0, None).sum())
+            assert correlated_error_factor(dt, tau, shared) == pytest.approx(brute)
+    assert correlated_error_factor(0.1, 1.0, 1.0) == pytest.approx(10.0)
+    assert correlated_error_factor(0.1, 1.0, 0.0) == correlated_error_factor(1.0, 1.0, 1.0) == 1.0
+    assert correlated_error_factor(0.0, 1.0, 1.0) == 1.0
+    with pytest.raises(ValueError, match="error_shared"):
+        WorldTrackerConfig(error_shared=-0.1)
 
 
 @pytest.mark.slow

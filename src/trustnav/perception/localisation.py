@@ -71,8 +71,9 @@ class LocaliserConfig:
     pitch_sigma_deg: float = 0.5
     pixel_sigma: float = 0.007
     pixel_floor: float = 0.3
-    lateral_sigma: float = 0.02
-    body_sigma: float = 0.03
+    lateral_sigma: float = 0.011
+    body_sigma: float = 0.01
+    foot_sigma: float = 0.012
     min_confidence: float = 0.3
     max_distance: float = 80.0
 
@@ -85,6 +86,7 @@ class LocaliserConfig:
             ("pixel_floor", self.pixel_floor, 0.01, 100.0),
             ("lateral_sigma", self.lateral_sigma, 0.0, 0.5),
             ("body_sigma", self.body_sigma, 0.0, 2.0),
+            ("foot_sigma", self.foot_sigma, 0.0, 0.2),
             ("min_confidence", self.min_confidence, 0.0, 1.0),
             ("max_distance", self.max_distance, 1.0, 1e4),
         )
@@ -153,8 +155,8 @@ class GroundLocaliser:
         where the first ``n_u`` entries are u's (see :meth:`locate`)."""
         cfg = self.config
         kp, conf = person.keypoints, person.confidences
-        u_obs, u_ratio, u_sig, u_w = [], [], [], []
-        v_obs, v_ratio, v_sig, v_w = [], [], [], []
+        u_obs, u_ratio, u_sig, u_w, u_foot = [], [], [], [], []
+        v_obs, v_ratio, v_sig, v_w, v_foot = [], [], [], [], []
         for i, (_, joints, _r, _s) in enumerate(BODY_POINTS):
             ok = [j for j in joints if conf[j] >= cfg.min_confidence and np.all(np.isfinite(kp[j]))]
             if not ok:
@@ -165,12 +167,15 @@ class GroundLocaliser:
             # one joint of a pair: off the centre line by up to half a body's width
             u_sig.append(math.hypot(cfg.pixel_sigma, cfg.lateral_sigma if len(ok) == len(joints) else 0.06))
             u_w.append(float(c.mean()))
+            u_foot.append(BODY_POINTS[i][0] == "ankles")
             for j in ok:
                 v_obs.append(float(kp[j, 1]))
                 v_ratio.append(self._ratio[i])
                 v_sig.append(math.hypot(cfg.pixel_sigma, self._ratio_sigma[i]))
                 v_w.append(float(conf[j]))
+                v_foot.append(BODY_POINTS[i][0] == "ankles")
         self._n_u = len(u_obs)
+        self._foot = np.array(u_foot + v_foot, dtype=float)
         return (
             np.array(u_obs + v_obs),
             np.array(u_ratio + v_ratio),
@@ -211,14 +216,23 @@ class GroundLocaliser:
         base_w = conf_w / sigma**2
         w = base_w.copy()
         pitch_sigma = math.radians(cfg.pitch_sigma_deg)
-        theta = np.array([start[0], start[1], cfg.stature, 0.0])
-        prior_w = np.array([0.0, 0.0, 1.0 / cfg.stature_sigma**2, 1.0 / max(pitch_sigma, 1e-6) ** 2])
-        prior_mean = np.array([0.0, 0.0, cfg.stature, 0.0])
+        theta = np.array([start[0], start[1], cfg.stature, 0.0, 0.0])
+        prior_w = np.array(
+            [
+                0.0,
+                0.0,
+                1.0 / cfg.stature_sigma**2,
+                1.0 / max(pitch_sigma, 1e-6) ** 2,
+                1.0 / max(cfg.foot_sigma, 1e-6) ** 2,
+            ]
+        )
+        prior_mean = np.array([0.0, 0.0, cfg.stature, 0.0, 0.0])
+        foot = self._foot
         g = float(ground(theta[:2]))
         for it in range(15):
             if it < 5:
                 g = float(ground(theta[:2]))
-            pred, jac = self._model(camera, theta, ratio, n_u, g)
+            pred, jac = self._model(camera, theta, ratio, n_u, g, foot)
             if pred is None:
                 return None
             r = obs - pred
@@ -234,15 +248,17 @@ class GroundLocaliser:
             theta = theta + step
             if abs(step[0]) + abs(step[1]) < 1e-4 and it >= 5:
                 break
-        pred, jac = self._model(camera, theta, ratio, n_u, g)
+        pred, jac = self._model(camera, theta, ratio, n_u, g, foot)
         if pred is None:
             return None
-        normal = jac.T @ (w[:, None] * jac) + np.diag(prior_w)
         # a body that does not fit the model (a detection stretched or squashed) is not believed
-        # more than its residuals allow: the covariance grows by the reduced chi^2 when above 1
-        fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
+        # more than its residuals allow: the covariance grows by the reduced chi^2 of the joints' v
+        # when above 1 (the range's evidence; the u's residuals are mostly the body's shape, a
+        # profile's nose or a stride, which the centre line averages out: docs/perceived.md)
+        r2 = base_w * (obs - pred) ** 2
+        fit = float(np.sum(r2[n_u:]) / max(len(obs) - n_u - 3, 1))
         try:
-            cov = np.linalg.inv(normal) * max(1.0, fit)
+            cov = np.linalg.inv(jac.T @ (w[:, None] * jac) + np.diag(prior_w)) * max(1.0, fit)
         except np.linalg.LinAlgError:
             return None
         pos = theta[:2].copy()
@@ -255,14 +271,19 @@ class GroundLocaliser:
 
     @staticmethod
     def _model(
-        camera: CameraPose, theta: NDArray[np.float64], ratio: NDArray[np.float64], n_u: int, ground: float
+        camera: CameraPose,
+        theta: NDArray[np.float64],
+        ratio: NDArray[np.float64],
+        n_u: int,
+        ground: float,
+        foot: NDArray[np.float64],
     ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64]]:
         """The fitted pixels at parameters (x, y, H, pitch offset): u of the first ``n_u`` body
         points, v of the joints after them; and their Jacobian (central differences)."""
 
-        def pixels(x: float, y: float, h: float, pitch: float) -> NDArray[np.float64] | None:
+        def pixels(x: float, y: float, h: float, pitch: float, f: float) -> NDArray[np.float64] | None:
             pose = CameraPose(camera.spec, camera.position, camera.yaw, camera.pitch + pitch, camera.roll)
-            pts = np.column_stack([np.full(len(ratio), x), np.full(len(ratio), y), ground + ratio * h])
+            pts = np.column_stack([np.full(len(ratio), x), np.full(len(ratio), y), ground + (ratio + f * foot) * h])
             uv, depth = pose.project(pts)
             if np.any(depth < 0.3):
                 return None
@@ -271,9 +292,9 @@ class GroundLocaliser:
         pred = pixels(*theta)
         if pred is None:
             return None, np.zeros(0)
-        jac = np.empty((len(ratio), 4))
-        for k, eps in enumerate((1e-3, 1e-3, 1e-3, 1e-5)):
-            d = np.zeros(4)
+        jac = np.empty((len(ratio), 5))
+        for k, eps in enumerate((1e-3, 1e-3, 1e-3, 1e-5, 1e-4)):
+            d = np.zeros(5)
             d[k] = eps
             a, b = pixels(*(theta + d)), pixels(*(theta - d))
             if a is None or b is None:

@@ -244,8 +244,9 @@ class DriveSimulation:
         if self._own_sensor:
             self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
         self.trust = TrustTracker(len(sc.pedestrians), sc.sensing.trust_params(), keep_time=sc.sensing.keep_time)
-        tracker = sc.sensing.tracker(keypoints=isinstance(self.sensor, KeypointSensor))
-        self.perceived = PedestrianEstimator(sc.sensing.localiser(), tracker, self.trust.estimator)
+        keypoints = isinstance(self.sensor, KeypointSensor)
+        tracker = sc.sensing.tracker(keypoints=keypoints)
+        self.perceived = PedestrianEstimator(sc.sensing.localiser(keypoints), tracker, self.trust.estimator)
         self._truth_track: dict[int, int] = {}  # pedestrian index -> world track last seen as it (scoring)
         self._truth_trust = np.zeros(len(sc.pedestrians))  # its trust then (0 until seen)
         self.frames: list[FrameReport] = []  # delivered (perception_latency after capture), in capture order

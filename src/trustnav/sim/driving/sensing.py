@@ -406,11 +406,5 @@ def make_render_pipeline(
         k = None if search_seconds is None else modelled_search_frames(fps, search_seconds)
         backend: Any = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=k))
     else:
-        # the offline render sensing keeps the proposers before issue 35 for now: the keypoint
-        # localisation (perception/localisation.py) was calibrated on their landmark fits, and on
-        # the detector's fits Case I's distracted pedestrian is placed 0.64 m off (0.49 m before),
-        # the car then relaxing ~100 steps (docs/perception.md, "Real time (issue 35)")
-        from trustnav.perception.mediapipe_backend import MediaPipeConfig
-
-        backend = MediaPipePoseBackend(MediaPipeConfig(proposer="blazepose"), video=fps >= 5.0)
+        backend = MediaPipePoseBackend(video=fps >= 5.0)
     return PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
