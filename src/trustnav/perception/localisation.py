@@ -24,8 +24,8 @@ pixels for four unknowns:
 
 The fit's covariance (Gauss-Newton, (J' W J + priors)^-1) is the estimate's uncertainty: pixel
 noise (a share of the person's pixel height, plus a floor), the spread of the body ratios, the
-stature prior, the pitch and the feet. It grows by the reduced chi^2 of the joints' v when above 1
-(a body stretched or squashed). The position's marginal 2x2 block is returned in world coordinates.
+stature prior, the pitch and the feet. It grows by the fit's reduced chi^2 when above 1 (a body
+stretched or squashed). The position's marginal 2x2 block is returned in world coordinates.
 Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
 """
 
@@ -65,9 +65,8 @@ class LocaliserConfig:
     stature / stature_sigma: the height prior (m; adults' standing height, ~1.70 +- 0.09);
     pitch_sigma_deg: how well the camera's pitch is known (deg; 0 = exactly, a car that brakes
     pitches by 1-2 deg); pixel_sigma: keypoint noise as a share of the person's pixel height,
-    pixel_floor: its floor (px); lateral_sigma: how far a body point's u strays from the centre
-    line beyond the pixel noise (share of the stature; the detector's joints' u spread, 0.013 of the
-    height on rendered people, less pixel_sigma); body_sigma: where on the body "the person's
+    pixel_floor: its floor (px); lateral_sigma: how far the centre line wanders sideways (share of
+    the stature: a walker's arms and legs); body_sigma: where on the body "the person's
     position" is (m, isotropic: added to the fit's covariance; the truth's error across the line
     of sight is ~1 cm on rendered frames and in keypoint sensing); foot_sigma: the spread of the
     feet's bias from person to person (share of the stature; the detector's ankles on rendered
@@ -80,7 +79,7 @@ class LocaliserConfig:
     pitch_sigma_deg: float = 0.5
     pixel_sigma: float = 0.007
     pixel_floor: float = 0.3
-    lateral_sigma: float = 0.011
+    lateral_sigma: float = 0.02
     body_sigma: float = 0.01
     foot_sigma: float = 0.012
     min_confidence: float = 0.3
@@ -261,11 +260,8 @@ class GroundLocaliser:
         if pred is None:
             return None
         # a body that does not fit the model (a detection stretched or squashed) is not believed
-        # more than its residuals allow: the covariance grows by the reduced chi^2 of the joints' v
-        # when above 1 (the range's evidence; the u's residuals are mostly the body's shape, a
-        # profile's nose or a stride, which the centre line averages out: docs/perceived.md)
-        r2 = base_w * (obs - pred) ** 2
-        fit = float(np.sum(r2[n_u:]) / max(len(obs) - n_u - 3, 1))
+        # more than its residuals allow: the covariance grows by the reduced chi^2 when above 1
+        fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
         try:
             cov = np.linalg.inv(jac.T @ (w[:, None] * jac) + np.diag(prior_w)) * max(1.0, fit)
         except np.linalg.LinAlgError:
