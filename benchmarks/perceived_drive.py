@@ -2,11 +2,11 @@
 controller knows only what the camera saw?
 
 Runs Case I and Case II (attentive and distracted walker) over seeds in keypoints mode (and, with
-``--render``, Cases I and II in render mode, ``--render-seeds`` seeds) with ``state = perceived`` (and ``--state true`` for the
-comparison), and prints per case: the distracted pedestrian passed wider than the attentive one
-(runs out of all), runs with a true distance below R, goal reached, the median and p95 of the
-localisation error, the velocity error, the interval coverage (truth inside the 90 % region) and
-identity switches.
+``--render``, Cases I and II in render mode, ``--render-seeds`` seeds) with ``state = perceived``
+(and ``--state true`` for the comparison), and prints per case: the distracted pedestrian passed
+wider than the attentive one (runs out of all), runs with a true distance below R, goal reached, the
+median and p95 of the localisation error, the velocity error, the interval coverage (truth inside
+the 90 % region) and identity switches.
 
     python benchmarks/perceived_drive.py                 # 20 seeds, keypoints, perceived (~1 min)
     python benchmarks/perceived_drive.py --seeds 5 --state true
