@@ -112,12 +112,12 @@ def test_localisation_on_a_kerb_uses_the_map_and_refuses_what_it_cannot_place():
         LocaliserConfig(pitch_sigma_deg=-1.0)
 
 
-def test_the_legs_bias_of_a_pose_is_an_unknown_of_the_body_not_noise_of_each_joint():
-    """legs_sigma: the detector places a texting pedestrian's knees and ankles 2-4 % of her height
-    higher than on other people, in every frame (docs/perceived.md). Knees and ankles raised by 3 %
-    of the body's image height: without the legs' offset the person is placed too far and sure of
-    it (the truth outside the 90 % region); with it the range leans on the rest of the body, the
-    error shrinks and the region holds the truth. An unbiased body is placed as well either way."""
+def test_the_feet_bias_of_a_pose_is_an_unknown_of_the_body_not_noise_of_each_ankle():
+    """foot_sigma: the detector places a texting pedestrian's ankles 6-8 % of her height too high
+    where the median is 4 % (docs/perceived.md). Both ankles raised by 4 % of the body's image
+    height: without the feet's offset the person is placed too far and sure of it (the truth
+    outside the 90 % region); with it the range leans on the rest of the body, the error shrinks and
+    the region holds the truth. An unbiased body is placed as well either way."""
     sc = load_drive_scenario("case-1")
     cam = sc.camera.pose([33.5, 124.0], -math.pi / 2)  # ~21 m ahead
     ground = street_of(sc).ground_height
@@ -125,17 +125,17 @@ def test_the_legs_bias_of_a_pose_is_an_unknown_of_the_body_not_noise_of_each_joi
     person = _person_at(sc, cam, 1, detector_bias=True, pixel_noise=0.0, dropout=0.0, common_noise=0.0,
                         outlier_rate=0.0)  # fmt: skip
     kp = person.keypoints.copy()
-    kp[13:17, 1] -= 0.03 * (person.bbox[3] - person.bbox[1])
+    kp[15:17, 1] -= 0.04 * (person.bbox[3] - person.bbox[1])
     raised = Person(person.bbox, kp, person.confidences, 0.9)
-    fixed = GroundLocaliser(LocaliserConfig(pitch_sigma_deg=0.03, legs_sigma=0.0))
+    fixed = GroundLocaliser(LocaliserConfig(pitch_sigma_deg=0.03, foot_sigma=0.0))
     free = GroundLocaliser(LocaliserConfig(pitch_sigma_deg=0.03))
     a, b = fixed.locate(raised, cam, ground), free.locate(raised, cam, ground)
     assert not a.contains(truth) and b.contains(truth)
-    assert np.hypot(*(b.position - truth)) < np.hypot(*(a.position - truth))
+    assert np.hypot(*(b.position - truth)) < 0.8 * np.hypot(*(a.position - truth))
     for loc in (fixed, free):
         assert np.hypot(*(loc.locate(person, cam, ground).position - truth)) < 0.1
-    with pytest.raises(ValueError, match="legs_sigma"):
-        LocaliserConfig(legs_sigma=-0.1)
+    with pytest.raises(ValueError, match="foot_sigma"):
+        LocaliserConfig(foot_sigma=-0.1)
 
 
 def test_a_squashed_detection_is_believed_less():
@@ -201,9 +201,9 @@ def test_error_correlation_follows_the_sensing_and_an_explicit_value_wins():
         SensingSpec(error_correlation_s=-1.0)
     with pytest.raises(ValueError, match="error_shared"):
         SensingSpec(error_shared=1.5)
-    # the detector's per-person bias of the legs is modelled for rendered frames only
-    assert SensingSpec().localiser(keypoints=True).legs_sigma == 0.0
-    assert SensingSpec().localiser().legs_sigma > 0.0
+    # the detector's per-person bias of the feet is modelled for rendered frames only
+    assert SensingSpec().localiser(keypoints=True).foot_sigma == 0.0
+    assert SensingSpec().localiser().foot_sigma > 0.0
 
 
 def test_correlated_error_factor_is_the_variance_inflation_of_linearly_fading_correlation():

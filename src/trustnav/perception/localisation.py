@@ -17,10 +17,10 @@ pixels for four unknowns:
 * a pitch offset of the camera, with the prior N(0, ``pitch_sigma``^2) (braking, bumps): where the
   soles meet the ground says how far the person is (the flat-ground model) only as far as the
   pitch is known, so an uncertain pitch hands the range over to the height prior;
-* an offset of the knees and ankles together (share of the stature) with the prior
-  N(0, ``legs_sigma``^2): the detector's bias on the legs is a property of the person, the pose and
-  the view, repeated in every frame of them (a texting pose's knees and ankles 2-4 % of the height
-  above where they are on other people), so it is one unknown of the body, not noise of each joint.
+* an offset of both ankles (share of the stature) with the prior N(0, ``foot_sigma``^2): the
+  detector's bias at the feet differs from person to person and pose to pose (the texting pose's
+  ankles 6-8 % of the height above the truth where the median is 4 %) and repeats in every frame
+  of that person, so it is one unknown of the body, not noise of each joint.
 
 The fit's covariance (Gauss-Newton, (J' W J + priors)^-1) is the estimate's uncertainty: pixel
 noise (a share of the person's pixel height, plus a floor), the spread of the body ratios, the
@@ -55,8 +55,6 @@ BODY_POINTS: tuple[tuple[str, tuple[int, ...], float, float], ...] = (
     ("knees", (13, 14), 0.300, 0.01),
     ("ankles", (15, 16), 0.092, 0.008),
 )
-#: The body points whose rows the detector moves together, person by person (LocaliserConfig.legs_sigma).
-_LEGS = ("knees", "ankles")
 chi2_90 = 4.605  # the 90 % quantile of chi^2 with 2 degrees of freedom (a 2-D Gaussian region)
 
 
@@ -70,9 +68,9 @@ class LocaliserConfig:
     pixel_floor: its floor (px); lateral_sigma: how far the centre line wanders sideways (share of
     the stature: a walker's arms and legs); body_sigma: where on the body "the person's
     position" is (m, isotropic: added to the fit's covariance; the truth's error across the line
-    of sight is ~1 cm on rendered frames and in keypoint sensing); legs_sigma: the spread of the
-    legs' common bias from person to person (share of the stature; the detector's knees and ankles
-    on rendered people: 0.014 robust spread less the pixels' 0.007; 0 for a sensor without one);
+    of sight is ~1 cm on rendered frames and in keypoint sensing); foot_sigma: the spread of the
+    feet's bias from person to person (share of the stature; the detector's ankles on rendered
+    people: 0.014 robust spread less the pixels' 0.007; 0 for a sensor without one);
     min_confidence: keypoints below it are not used; max_distance: estimates farther than this
     (m) are refused (a person on the horizon)."""
 
@@ -83,7 +81,7 @@ class LocaliserConfig:
     pixel_floor: float = 0.3
     lateral_sigma: float = 0.02
     body_sigma: float = 0.01
-    legs_sigma: float = 0.012
+    foot_sigma: float = 0.012
     min_confidence: float = 0.3
     max_distance: float = 80.0
 
@@ -96,7 +94,7 @@ class LocaliserConfig:
             ("pixel_floor", self.pixel_floor, 0.01, 100.0),
             ("lateral_sigma", self.lateral_sigma, 0.0, 0.5),
             ("body_sigma", self.body_sigma, 0.0, 2.0),
-            ("legs_sigma", self.legs_sigma, 0.0, 0.2),
+            ("foot_sigma", self.foot_sigma, 0.0, 0.2),
             ("min_confidence", self.min_confidence, 0.0, 1.0),
             ("max_distance", self.max_distance, 1.0, 1e4),
         )
@@ -165,8 +163,8 @@ class GroundLocaliser:
         where the first ``n_u`` entries are u's (see :meth:`locate`)."""
         cfg = self.config
         kp, conf = person.keypoints, person.confidences
-        u_obs, u_ratio, u_sig, u_w, u_legs = [], [], [], [], []
-        v_obs, v_ratio, v_sig, v_w, v_legs = [], [], [], [], []
+        u_obs, u_ratio, u_sig, u_w, u_foot = [], [], [], [], []
+        v_obs, v_ratio, v_sig, v_w, v_foot = [], [], [], [], []
         for i, (_, joints, _r, _s) in enumerate(BODY_POINTS):
             ok = [j for j in joints if conf[j] >= cfg.min_confidence and np.all(np.isfinite(kp[j]))]
             if not ok:
@@ -177,15 +175,15 @@ class GroundLocaliser:
             # one joint of a pair: off the centre line by up to half a body's width
             u_sig.append(math.hypot(cfg.pixel_sigma, cfg.lateral_sigma if len(ok) == len(joints) else 0.06))
             u_w.append(float(c.mean()))
-            u_legs.append(BODY_POINTS[i][0] in _LEGS)
+            u_foot.append(BODY_POINTS[i][0] == "ankles")
             for j in ok:
                 v_obs.append(float(kp[j, 1]))
                 v_ratio.append(self._ratio[i])
                 v_sig.append(math.hypot(cfg.pixel_sigma, self._ratio_sigma[i]))
                 v_w.append(float(conf[j]))
-                v_legs.append(BODY_POINTS[i][0] in _LEGS)
+                v_foot.append(BODY_POINTS[i][0] == "ankles")
         self._n_u = len(u_obs)
-        self._legs = np.array(u_legs + v_legs, dtype=float)
+        self._foot = np.array(u_foot + v_foot, dtype=float)
         return (
             np.array(u_obs + v_obs),
             np.array(u_ratio + v_ratio),
@@ -233,16 +231,16 @@ class GroundLocaliser:
                 0.0,
                 1.0 / cfg.stature_sigma**2,
                 1.0 / max(pitch_sigma, 1e-6) ** 2,
-                1.0 / max(cfg.legs_sigma, 1e-6) ** 2,
+                1.0 / max(cfg.foot_sigma, 1e-6) ** 2,
             ]
         )
         prior_mean = np.array([0.0, 0.0, cfg.stature, 0.0, 0.0])
-        legs = self._legs
+        foot = self._foot
         g = float(ground(theta[:2]))
         for it in range(15):
             if it < 5:
                 g = float(ground(theta[:2]))
-            pred, jac = self._model(camera, theta, ratio, n_u, g, legs)
+            pred, jac = self._model(camera, theta, ratio, n_u, g, foot)
             if pred is None:
                 return None
             r = obs - pred
@@ -258,7 +256,7 @@ class GroundLocaliser:
             theta = theta + step
             if abs(step[0]) + abs(step[1]) < 1e-4 and it >= 5:
                 break
-        pred, jac = self._model(camera, theta, ratio, n_u, g, legs)
+        pred, jac = self._model(camera, theta, ratio, n_u, g, foot)
         if pred is None:
             return None
         # a body that does not fit the model (a detection stretched or squashed) is not believed
@@ -283,14 +281,14 @@ class GroundLocaliser:
         ratio: NDArray[np.float64],
         n_u: int,
         ground: float,
-        legs: NDArray[np.float64],
+        foot: NDArray[np.float64],
     ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64]]:
         """The fitted pixels at parameters (x, y, H, pitch offset): u of the first ``n_u`` body
         points, v of the joints after them; and their Jacobian (central differences)."""
 
         def pixels(x: float, y: float, h: float, pitch: float, f: float) -> NDArray[np.float64] | None:
             pose = CameraPose(camera.spec, camera.position, camera.yaw, camera.pitch + pitch, camera.roll)
-            pts = np.column_stack([np.full(len(ratio), x), np.full(len(ratio), y), ground + (ratio + f * legs) * h])
+            pts = np.column_stack([np.full(len(ratio), x), np.full(len(ratio), y), ground + (ratio + f * foot) * h])
             uv, depth = pose.project(pts)
             if np.any(depth < 0.3):
                 return None

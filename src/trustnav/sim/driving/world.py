@@ -311,12 +311,12 @@ class SensingSpec:
 
     def localiser(self, keypoints: bool = False) -> LocaliserConfig:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
-        error model draws no per-person bias of the legs: ``legs_sigma`` 0; rendered frames through
-        the detector: the measured spread, ``LocaliserConfig.legs_sigma``)."""
+        error model draws no per-person bias of the feet: ``foot_sigma`` 0; rendered frames through
+        the detector: the measured spread, ``LocaliserConfig.foot_sigma``)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
-        return replace(cfg, legs_sigma=0.0) if keypoints else cfg
+        return replace(cfg, foot_sigma=0.0) if keypoints else cfg
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
