@@ -262,9 +262,11 @@ class SensingSpec:
     camera's pitch is known: the simulated car body does not pitch: 0.03 deg, the
     detector's common vertical shift, by default),
     ``accel_psd`` (m^2/s^3, the tracker's walking model), ``error_correlation_s`` (s over which a
-    person's placement errors stay alike: frames closer together count as one placement, see
-    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 1 s for
-    rendered frames, 0.1 s for keypoint sensing, whose errors are drawn anew in each frame),
+    person's placement errors stay alike, fading linearly) and ``error_shared`` (their correlation
+    between frames close together): frames closer together count as fewer placements, see
+    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 2.2 s and
+    0.66 for rendered frames (measured), 0.1 s and 1 for keypoint sensing, whose errors are drawn
+    anew in each frame),
     ``track_keep`` (s a track lives unseen
     where the camera should see it; out of view beside the
     car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
@@ -303,7 +305,7 @@ class SensingSpec:
     def __post_init__(self) -> None:
         check_fields(self)
         self.localiser()  # validates stature, stature_sigma, pitch_sigma_deg
-        self.tracker()  # validates accel_psd, track_keep, error_correlation_s
+        self.tracker()  # validates accel_psd, track_keep, error_correlation_s, error_shared
 
     def trust_params(self) -> TrustParams:
         """The trust law's parameters (``trust_law``)."""
@@ -320,8 +322,9 @@ class SensingSpec:
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
-        ``error_correlation_s`` is :data:`KEYPOINT_ERROR_CORRELATION_S`; rendered frames:
-        :data:`RENDER_ERROR_CORRELATION_S`)."""
+        ``error_correlation_s`` and ``error_shared`` are :data:`KEYPOINT_ERROR_CORRELATION_S` and
+        :data:`KEYPOINT_ERROR_SHARED`; rendered frames: :data:`RENDER_ERROR_CORRELATION_S`,
+        :data:`RENDER_ERROR_SHARED`)."""
         tau, shared = self.error_correlation_s, self.error_shared
         if tau is None:
             tau = KEYPOINT_ERROR_CORRELATION_S if keypoints else RENDER_ERROR_CORRELATION_S
