@@ -385,7 +385,9 @@ def make_render_pipeline(
     scenario: Any, capture_rate: float | None = None, realtime: bool = False, search_seconds: float | None = None
 ) -> Any:
     """trustnav.perception for a drive's camera frames (trustnav's renders or CARLA's images):
-    MediaPipe BlazePose, OC-SORT tracking at the capture rate, LOOKING, the phone classifier.
+    the person detector (YOLOX-Nano) with BlazePose's landmarks on its boxes (issue 35; the
+    localisation is calibrated on these fits, docs/perceived.md), OC-SORT tracking at the capture
+    rate, LOOKING, the phone classifier.
     BlazePose's video mode (following people from their landmarks between detections) only from
     5 frames/s: at 1 frame/s a car moves metres between frames and the follower left a stray box
     where a person had been. ``realtime``: the pose backend is
