@@ -8,7 +8,7 @@ shoulders 0.818, hips 0.53, knees 0.285, ankles ~0.04-0.05; Drillis & Contini 19
 person's height (ankles +0.040, knees +0.017, nose +0.028, eyes +0.022; measured on 334 rendered
 people 8-30 m away, ``benchmarks/calibrate_keypoints.py``). The body's centre line (u of the
 midpoints of the left/right pairs) and every joint's v are fitted by weighted least squares in the
-pixels for four unknowns:
+pixels for five unknowns:
 
 * the ground position (x, y) of the person, on the surface the map gives there (road, or a
   sidewalk raised by its kerb: ``ground_height(xy)``);
