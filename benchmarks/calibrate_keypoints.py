@@ -4,15 +4,16 @@ One pedestrian is placed at a grid of positions ahead of the drive's camera (cas
 street: ego heading -pi/2 along the road, the pedestrian 8-30 m ahead, -5..+5 m to the side, on the
 road and on the 0.13 m kerb), in the poses of the Cases (attentive, distracted, walking) at random
 sway times and body yaws 0/90/180/270 deg +- 20 deg. Each placement is rendered with PyBullet and
-run through the project's perception pipeline (BlazePose; a fresh tracker per image, the backend in
-image mode keeps no state), the detected person is matched to the true one by box overlap, and per
-COCO joint the residual detected - projected true joint is measured in units of the person's
-projected height H (true head top to sole, pixels), separately for u and v: mean and standard
-deviation, and the robust median and 1.4826 * MAD, near (< 15 m) and far. Also: detection rate
-against distance, the bottom of the detector's box and BlazePose's heel / foot-index landmarks
-against the true sole pixel, and the spread of H (and of the person's apparent height in metres);
-left/right swaps; and a pixel model per joint (bias = offset px + slope x H, sigma = sqrt(s0^2 +
-(s1 x H)^2), fitted across distances), the form a keypoint noise model can copy.
+run through the project's perception pipeline (the person detector, BlazePose's landmarks on its
+boxes; a fresh tracker per image, the backend in image mode keeps no state), the detected person is
+matched to the true one by box overlap, and per COCO joint the residual detected - projected true
+joint is measured in units of the person's projected height H (true head top to sole, pixels),
+separately for u and v: mean and standard deviation, and the robust median and 1.4826 * MAD, near
+(< 15 m) and far. Also: detection rate against distance, the bottom of the detector's box and
+BlazePose's heel / foot-index landmarks against the true sole pixel, and the spread of H (and of the
+person's apparent height in metres); left/right swaps; and a pixel model per joint (bias = offset px +
+slope x H, sigma = sqrt(s0^2 + (s1 x H)^2), fitted across distances), the form a keypoint noise
+model can copy.
 
 The same placements also go through the keypoint sensor (KeypointSensor.person, the scenario's
 noise) so that the two sit side by side.
@@ -643,8 +644,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         doc = {
-            "description": "detector (BlazePose on rendered frames) - true projected joints, in units of the "
-            "person's projected height H (head top to sole, px); bias = median, rsd = 1.4826 MAD",
+            "description": "detector (YOLOX-Nano boxes, BlazePose landmarks, rendered frames) - true projected "
+            "joints, in units of the person's projected height H (head top to sole, px); bias = median, "
+            "rsd = 1.4826 MAD",
             "scenario": args.scenario,
             "seed": args.seed,
             "quick": args.quick,

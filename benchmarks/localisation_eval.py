@@ -241,10 +241,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     else:
         grid = placements(DISTANCES, OFFSETS, tuple(POSE_LOOKS), max(1, args.repeats), rng)
     # the scenario's localiser: its camera's pitch is known as the drive knows it (--pitch-sigma to change)
-    config = scenario.sensing.localiser()
-    if args.pitch_sigma is not None:
-        config = replace(config, pitch_sigma_deg=args.pitch_sigma)
-    localiser = GroundLocaliser(config)
+    # (rendered frames: the detector's feet bias modelled; keypoint sensing: none drawn)
+    localisers = {}
+    for mode in MODES:
+        config = scenario.sensing.localiser(keypoints=mode != "render")
+        if args.pitch_sigma is not None:
+            config = replace(config, pitch_sigma_deg=args.pitch_sigma)
+        localisers[mode] = GroundLocaliser(config)
+    config = localisers["render"].config
     model = None
     if args.calibration:
         model = CalibratedNoise(json.loads(args.calibration.read_text()), np.random.default_rng(args.seed + 2))
@@ -269,7 +273,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                 found["model"] = model.person(scene, kp)
             for mode in modes:
                 who = found[mode]
-                est = None if who is None else localiser.locate(who, scene.camera, ground_height=street.ground_height)
+                loc = localisers[mode]
+                est = None if who is None else loc.locate(who, scene.camera, ground_height=street.ground_height)
                 recs[mode].append({**score(est, scene), "seen": who is not None})
             if (i + 1) % 25 == 0:
                 print(f"  {i + 1}/{len(grid)} images, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)

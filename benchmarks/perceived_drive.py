@@ -2,15 +2,16 @@
 controller knows only what the camera saw?
 
 Runs Case I and Case II (attentive and distracted walker) over seeds in keypoints mode (and, with
-``--render``, Case I once in render mode) with ``state = perceived`` (and ``--state true`` for the
-comparison), and prints per case: the distracted pedestrian passed wider than the attentive one
-(runs out of all), runs with a true distance below R, goal reached, the median and p95 of the
-localisation error, the velocity error, the interval coverage (truth inside the 90 % region) and
-identity switches.
+``--render``, Cases I and II in render mode, ``--render-seeds`` seeds) with ``state = perceived``
+(and ``--state true`` for the comparison), and prints per case: the distracted pedestrian passed
+wider than the attentive one (runs out of all), runs with a true distance below R, goal reached, the
+median and p95 of the localisation error, the velocity error, the interval coverage (truth inside
+the 90 % region) and identity switches.
 
     python benchmarks/perceived_drive.py                 # 20 seeds, keypoints, perceived (~1 min)
     python benchmarks/perceived_drive.py --seeds 5 --state true
-    python benchmarks/perceived_drive.py --render        # adds Case I in render mode (~1 min more)
+    python benchmarks/perceived_drive.py --render        # adds Cases I and II in render mode (~2 min more)
+    python benchmarks/perceived_drive.py --render --render-seeds 3 --rate 10   # 3 render runs at 10 frames/s
     python benchmarks/perceived_drive.py --caution on    # with the trust-aware speed bound (issue 34)
 """
 
@@ -50,6 +51,7 @@ def _case_runs(
     sensing: str = "keypoints",
     caution: bool | None = None,
     error_correlation: float | None = None,
+    only: bool | None = None,
     **kw,
 ) -> list[dict]:
     sc = load_drive_scenario(name)
@@ -58,6 +60,8 @@ def _case_runs(
     if caution is not None:  # the trust-aware speed bound on or off (the presets: off, the paper's)
         sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
     variants = [True, False] if sc.variants else [None]
+    if only is not None or not sc.variants:
+        variants = [only]
     out = []
     for seed in seeds:
         runs, errors = {}, []
@@ -127,7 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--seeds", type=int, default=20, help="seeds per case (default 20)")
     ap.add_argument("--state", choices=STATES, default="perceived", help="controller's pedestrian states")
-    ap.add_argument("--render", action="store_true", help="also Case I in render mode (seed 0)")
+    ap.add_argument("--render", action="store_true", help="also Cases I and II in render mode (--render-seeds seeds)")
+    ap.add_argument("--render-seeds", type=int, default=1, help="render-mode seeds from --first-seed (default 1)")
+    ap.add_argument("--skip-keypoints", action="store_true", help="only the render runs (with --render)")
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
     ap.add_argument("--caution", choices=("on", "off"), help="the trust-aware speed bound (default: the presets', off)")
     ap.add_argument("--json", help="write the summary rows to this file")
@@ -137,11 +143,15 @@ def main(argv: list[str] | None = None) -> int:
     caution = None if args.caution is None else args.caution == "on"
     if not 1 <= args.seeds <= 1000:
         ap.error(f"--seeds must be in [1, 1000], got {args.seeds}")
+    if not 1 <= args.render_seeds <= 100:
+        ap.error(f"--render-seeds must be in [1, 100], got {args.render_seeds}")
+    if args.skip_keypoints and not args.render:
+        ap.error("--skip-keypoints needs --render")
     if args.rate is not None and not 0 < args.rate <= 60:
         ap.error(f"--rate must be in (0, 60] frames per second, got {args.rate:g}")
     rows = []
     t0 = time.perf_counter()
-    for name, gap in (("case-1", 1.0), ("case-2", 0.5)):
+    for name, gap in () if args.skip_keypoints else (("case-1", 1.0), ("case-2", 0.5)):
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         runs = _case_runs(name, seeds, args.state, caution=caution, capture_rate=args.rate,
                           error_correlation=args.error_correlation)  # fmt: skip
@@ -149,18 +159,31 @@ def main(argv: list[str] | None = None) -> int:
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
 
-        sc = load_drive_scenario("case-1")
-        renderer, pipeline = make_render_sensing(sc)
-        try:
-            entries = _case_runs("case-1", range(args.first_seed, args.first_seed + 1), args.state, "render",
-                                 caution=caution, renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
-                                 error_correlation=args.error_correlation)  # fmt: skip
-        finally:
-            renderer.close()
-            pipeline.backend.close()
-        row = summarise("case-1 render", entries, 1.0)
-        row["detection_recall"] = entries[0]["runs"]["both"].get("detection_recall")
-        rows.append(row)
+        for name, gap in (("case-1", 1.0), ("case-2", 0.5)):
+            sc = load_drive_scenario(name)
+            entries = []
+            for seed in range(args.first_seed, args.first_seed + args.render_seeds):
+                # a fresh renderer and pipeline per run (image tracker, video mode at the rate)
+                for att in [True, False] if sc.variants else [None]:
+                    renderer, pipeline = make_render_sensing(sc, capture_rate=args.rate)
+                    try:
+                        entries += _case_runs(name, range(seed, seed + 1), args.state, "render", caution=caution,
+                                              renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
+                                              error_correlation=args.error_correlation, only=att)  # fmt: skip
+                    finally:
+                        renderer.close()
+                        pipeline.backend.close()
+            if sc.variants:  # one entry per seed with both runs
+                merged = {}
+                for e in entries:
+                    m = merged.setdefault(e["seed"], {"seed": e["seed"], "runs": {}, "errors": []})
+                    m["runs"].update(e["runs"])
+                    m["errors"] += e["errors"]
+                entries = list(merged.values())
+            row = summarise(f"{name} render", entries, gap)
+            recall = [m.get("detection_recall") for e in entries for m in e["runs"].values()]
+            row["detection_recall"] = None if None in recall else round(float(np.mean(recall)), 3)
+            rows.append(row)
     rate = f"{args.rate:g} frames/s" if args.rate else "the scenario's camera rate"
     print(f"state = {args.state}, {args.seeds} seeds, {rate}, {time.perf_counter() - t0:.0f} s")
     for r in rows:

@@ -63,9 +63,12 @@ class WorldTrackerConfig:
     view; behind: metres behind the camera beyond which a track is dropped; max_sigma: the
     position sigma (m) beyond which a track is dropped; error_correlation_s: how long a person's
     placement errors stay alike (s): the same pose seen from nearly the same place gives the same
-    detector bias frame after frame, so a frame that follows the track's previous one by dt < this
-    is folded in with its covariance times error_correlation_s / dt (the frames of one such span
-    count as one independent placement); 0: every frame independent. out_of_view_max_sigma: the
+    detector bias frame after frame; error_shared: the errors' correlation between frames close
+    together (the share of their variance that repeats); their correlation fades linearly to 0 at
+    error_correlation_s, and a frame that follows the track's previous one by dt < error_correlation_s
+    is folded in with its covariance times the variance inflation factor of such errors
+    (:func:`correlated_error_factor`; 1 s and 1: the frames of one second count as one independent
+    placement); error_correlation_s or error_shared 0: every frame independent. out_of_view_max_sigma: the
     position sigma (m) beyond which a track beside or behind the camera's horizontal view, walking
     away from its axis, is dropped (one cut off in front of the camera, or walking toward the car's
     path, is kept: the car may drive into them): where the camera
@@ -86,6 +89,7 @@ class WorldTrackerConfig:
     behind: float = 6.0
     max_sigma: float = 4.0
     error_correlation_s: float = 1.0
+    error_shared: float = 1.0
     out_of_view_max_sigma: float = 1.5
 
     def __post_init__(self) -> None:
@@ -104,6 +108,7 @@ class WorldTrackerConfig:
             ("max_sigma", 0.01, 1e3),
             ("out_of_view_max_sigma", 0.01, 1e3),
             ("error_correlation_s", 0.0, 60.0),
+            ("error_shared", 0.0, 1.0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
@@ -198,17 +203,22 @@ def _mix(t: WorldTrack, dt: float, cfg: WorldTrackerConfig):
 _H = np.hstack([np.eye(2), np.zeros((2, 2))])
 
 
-def correlated_error_factor(dt: float, correlation_s: float) -> float:
+def correlated_error_factor(dt: float, correlation_s: float, shared: float = 1.0) -> float:
     """The factor on a placement's covariance for a frame ``dt`` seconds after the track's previous
-    one when placement errors stay alike for ``correlation_s`` (``WorldTrackerConfig``): the
-    ``correlation_s / dt`` frames of one span then carry one independent placement's information
-    (the usual covariance inflation for correlated measurements), so the track's covariance after a
-    span of frames is about the same at any frame rate. 1 (no change) from ``dt >= correlation_s``
-    on, and for a first frame or a track found again after a gap."""
-    if correlation_s <= 0.0 or not dt > 0.0:
+    one (``WorldTrackerConfig``): placement errors ``t`` seconds apart correlate by
+    ``shared * max(0, 1 - t / correlation_s)`` (a share ``shared`` of their variance repeats, and
+    the repetition fades out over ``correlation_s``: the same pose seen from a place that slowly
+    changes). Fusing a run of such frames as if independent would shrink the covariance by the
+    variance inflation factor 1 + 2 sum_k r(k dt) too much, so each frame is folded in with its
+    covariance times that factor (the usual inflation for correlated measurements; with
+    ``shared`` = 1 about ``correlation_s / dt``: the frames of one span count as one placement).
+    The track's covariance after a span of frames is then about the same at any frame rate.
+    1 (no change) from ``dt >= correlation_s`` on, and for a first frame or a track found again
+    after a gap."""
+    if correlation_s <= 0.0 or shared <= 0.0 or not 0.0 < dt < correlation_s:
         return 1.0
-    factor = correlation_s / dt
-    return factor if factor > 1.0 + 1e-9 else 1.0
+    k = math.ceil(correlation_s / dt - 1e-9) - 1  # lags k dt < correlation_s
+    return 1.0 + 2.0 * shared * (k - dt / correlation_s * k * (k + 1) / 2.0)
 
 
 class WorldTracker:
@@ -288,7 +298,7 @@ class WorldTracker:
                 t = self.tracks[a]
                 if dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
-                alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s)
+                alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, cfg.error_shared)
                 if alike > 1.0:  # a frame soon after the last: its error is mostly that frame's again
                     e = replace(e, covariance=e.covariance * alike)
                 self._correct(t, e)

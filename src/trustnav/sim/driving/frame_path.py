@@ -162,8 +162,9 @@ class PerceivedPath(FramePath):
     ) -> None:
         super().__init__(sensor)
         self.trust = TrustEstimator(spec.trust_params(), keep_time=spec.keep_time)
-        tracker = spec.tracker(keypoints=isinstance(sensor, KeypointSensor))
-        self.pedestrians = PedestrianEstimator(spec.localiser(), tracker, self.trust)
+        keypoints = isinstance(sensor, KeypointSensor)
+        tracker = spec.tracker(keypoints=keypoints)
+        self.pedestrians = PedestrianEstimator(spec.localiser(keypoints), tracker, self.trust)
         self.ground_height = ground_height
 
     def track(self, frame: Frame) -> TrackedFrame:

@@ -347,7 +347,9 @@ def make_render_pipeline(
     scenario: Any, capture_rate: float | None = None, realtime: bool = False, search_seconds: float | None = None
 ) -> Any:
     """trustnav.perception for a drive's camera frames (trustnav's renders or CARLA's images):
-    MediaPipe BlazePose, OC-SORT tracking at the capture rate, LOOKING, the phone classifier.
+    the person detector (YOLOX-Nano) with BlazePose's landmarks on its boxes (issue 35; the
+    localisation is calibrated on these fits, docs/perceived.md), OC-SORT tracking at the capture
+    rate, LOOKING, the phone classifier.
     BlazePose's video mode (following people from their landmarks between detections) only from
     5 frames/s: at 1 frame/s a car moves metres between frames and the follower left a stray box
     where a person had been. ``realtime``: the pose backend is
@@ -368,11 +370,5 @@ def make_render_pipeline(
         k = None if search_seconds is None else modelled_search_frames(fps, search_seconds)
         backend: Any = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=k))
     else:
-        # the offline render sensing keeps the proposers before issue 35 for now: the keypoint
-        # localisation (perception/localisation.py) was calibrated on their landmark fits, and on
-        # the detector's fits Case I's distracted pedestrian is placed 0.64 m off (0.49 m before),
-        # the car then relaxing ~100 steps (docs/perception.md, "Real time (issue 35)")
-        from trustnav.perception.mediapipe_backend import MediaPipeConfig
-
-        backend = MediaPipePoseBackend(MediaPipeConfig(proposer="blazepose"), video=fps >= 5.0)
+        backend = MediaPipePoseBackend(video=fps >= 5.0)
     return PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())

@@ -227,13 +227,17 @@ class ControlSpec:
 MAX_PERCEPTION_LATENCY = 5.0
 
 
-# how long a person's placement errors stay alike (s; docs/perceived.md, "Calibration"): rendered
-# frames through a detector repeat its bias for one pose and viewpoint (Case I at 10 frames/s,
-# independent frames: the truth in the 90 % region in 26 % of the distracted pedestrian's frames);
-# keypoint sensing draws its joints' errors anew in each frame (measured on seeds 100-103: the
-# errors' correlation 0.12 one frame apart at 10 frames/s, a track's mean error 3-5 % of their energy)
-RENDER_ERROR_CORRELATION_S = 1.0
+# how a person's placement errors repeat from frame to frame (docs/perceived.md, "Calibration"):
+# rendered frames through the detector repeat its bias for one pose and viewpoint; measured on Case I
+# seeds 100-101 at 10 frames/s, the raw placements' whitened errors correlate by 0.66-0.71 0.1 s
+# apart, falling about linearly to 0 at 2.2 s (correlation s and shared share below). Keypoint
+# sensing draws its joints' errors anew in each frame (correlation 0.1-0.2 at 0.1-1 s, from the
+# stature and the constant detector bias; its 90 % region holds the truth in 0.92-0.95 of the
+# frames at 10 frames/s without inflation, so none: 0.1 s, one frame at 10 frames/s)
+RENDER_ERROR_CORRELATION_S = 2.2
+RENDER_ERROR_SHARED = 0.66
 KEYPOINT_ERROR_CORRELATION_S = 0.1
+KEYPOINT_ERROR_SHARED = 1.0
 
 
 @dataclass(frozen=True)
@@ -258,9 +262,11 @@ class SensingSpec:
     camera's pitch is known: the simulated car body does not pitch: 0.03 deg, the
     detector's common vertical shift, by default),
     ``accel_psd`` (m^2/s^3, the tracker's walking model), ``error_correlation_s`` (s over which a
-    person's placement errors stay alike: frames closer together count as one placement, see
-    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 1 s for
-    rendered frames, 0.1 s for keypoint sensing, whose errors are drawn anew in each frame),
+    person's placement errors stay alike, fading linearly) and ``error_shared`` (their correlation
+    between frames close together): frames closer together count as fewer placements, see
+    :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 2.2 s and
+    0.66 for rendered frames (measured), 0.1 s and 1 for keypoint sensing, whose errors are drawn
+    anew in each frame),
     ``track_keep`` (s a track lives unseen
     where the camera should see it; out of view beside the
     car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
@@ -288,7 +294,10 @@ class SensingSpec:
     pitch_sigma_deg: float = 0.03
     accel_psd: float = 0.25
     error_correlation_s: Annotated[
-        float | None, Maybe(Number(0, 60, unit=" s"), "by sensing: 1 s for rendered frames, 0.1 s for keypoints")
+        float | None, Maybe(Number(0, 60, unit=" s"), "by sensing: 2.2 s for rendered frames, 0.1 s for keypoints")
+    ] = None
+    error_shared: Annotated[
+        float | None, Maybe(Number(0, 1), "by sensing: 0.66 for rendered frames, 1 for keypoints")
     ] = None
     track_keep: float = 2.5
     perception_latency: Annotated[float, Number(0, MAX_PERCEPTION_LATENCY, unit=" s")] = 0.0
@@ -296,26 +305,34 @@ class SensingSpec:
     def __post_init__(self) -> None:
         check_fields(self)
         self.localiser()  # validates stature, stature_sigma, pitch_sigma_deg
-        self.tracker()  # validates accel_psd, track_keep, error_correlation_s
+        self.tracker()  # validates accel_psd, track_keep, error_correlation_s, error_shared
 
     def trust_params(self) -> TrustParams:
         """The trust law's parameters (``trust_law``)."""
         return TRUST_LAWS[self.trust_law]
 
-    def localiser(self) -> LocaliserConfig:
-        """The ground-plane localiser's configuration."""
-        return LocaliserConfig(
+    def localiser(self, keypoints: bool = False) -> LocaliserConfig:
+        """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
+        error model draws no per-person bias of the feet: ``foot_sigma`` 0; rendered frames through
+        the detector: the measured spread, ``LocaliserConfig.foot_sigma``)."""
+        cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
+        return replace(cfg, foot_sigma=0.0) if keypoints else cfg
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
-        ``error_correlation_s`` is :data:`KEYPOINT_ERROR_CORRELATION_S`; rendered frames:
-        :data:`RENDER_ERROR_CORRELATION_S`)."""
-        tau = self.error_correlation_s
+        ``error_correlation_s`` and ``error_shared`` are :data:`KEYPOINT_ERROR_CORRELATION_S` and
+        :data:`KEYPOINT_ERROR_SHARED`; rendered frames: :data:`RENDER_ERROR_CORRELATION_S`,
+        :data:`RENDER_ERROR_SHARED`)."""
+        tau, shared = self.error_correlation_s, self.error_shared
         if tau is None:
             tau = KEYPOINT_ERROR_CORRELATION_S if keypoints else RENDER_ERROR_CORRELATION_S
-        return WorldTrackerConfig(accel_psd=self.accel_psd, keep_seconds=self.track_keep, error_correlation_s=tau)
+        if shared is None:
+            shared = KEYPOINT_ERROR_SHARED if keypoints else RENDER_ERROR_SHARED
+        return WorldTrackerConfig(
+            accel_psd=self.accel_psd, keep_seconds=self.track_keep, error_correlation_s=tau, error_shared=shared
+        )
 
 
 @dataclass(frozen=True)
