@@ -21,8 +21,9 @@ Y = Yielder(YieldConfig())
 R = np.array([2.5])
 
 
-def _decide(ped, vel, car=(0.0, 0.0), speed=8.0, radii=R):
-    return Y.decide(np.array(car), speed, pedestrians=np.array([ped]), velocities=np.array([vel]), radii=radii, **ROAD)
+def _decide(ped, vel, car=(0.0, 0.0), speed=8.0, radii=R, lateral=None):
+    return Y.decide(np.array(car), speed, pedestrians=np.array([ped]), velocities=np.array([vel]), radii=radii,
+                    lateral_sigmas=None if lateral is None else np.array([lateral]), **ROAD)  # fmt: skip
 
 
 def test_a_pedestrian_standing_in_the_lane_is_stopped_for_short_of_r():
@@ -59,6 +60,19 @@ def test_the_car_goes_first_only_when_it_is_past_well_before_they_block():
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0) is None
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=4.0) is not None
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=0.0) is not None
+
+
+def test_an_uncertain_crossing_speed_is_passed_in_front_only_if_its_upper_bound_allows():
+    # the walker of the test above, her speed across (1 m/s, estimated from two frames) uncertain by
+    # sigma 0.6 m/s (z sigma ~1 m/s): at 2 m/s she would block after 1.7 s, before the car at 15 m/s is
+    # past (1.8 s)
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.0) is None
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.6) is not None
+    assert _decide((10.0, -8.0), (0.0, 1.0), speed=15.0, lateral=0.6) is not None  # the other side
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.1) is None  # known well enough
+    # the bound never makes someone block who does not at the estimated velocity
+    assert _decide((12.0, 4.0), (0.0, 0.0), lateral=0.6) is None
+    assert _decide((25.0, 4.2), (0.0, 0.0), lateral=0.6) is None
 
 
 def test_uncertainty_widens_who_blocks():

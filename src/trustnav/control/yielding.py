@@ -22,6 +22,13 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
 - **Yield** to a blocking pedestrian unless the car, at its present speed, has passed them
   ``clear_time`` s before their blocking begins. The stop is ``r + gap`` short of the nearest place
   the pedestrian blocks; the speed is capped to brake there at ``deceleration``.
+- **An uncertain velocity** (``lateral_sigmas``: the estimate's sigma of the speed across the
+  road, from its covariance; ``z``: the one-sided quantile of the controller's confidence) enters
+  the judgement "the car is past them well before they block" on the unsafe side: their blocking
+  is taken to begin when it would at their estimated velocity raised by z sigma toward the road's
+  line (a velocity estimated from a frame or two lags a step-out), so the car passes in front
+  only if it would at that speed too. Who blocks is judged at the estimated velocity, as the MPC
+  predicts: the bound never makes someone standing at the kerb a crosser.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -88,25 +95,31 @@ class Yielder:
         pedestrians: NDArray[np.float64],
         velocities: NDArray[np.float64],
         radii: NDArray[np.float64],
+        lateral_sigmas: NDArray[np.float64] | None = None,
+        z: float = 1.645,
     ) -> YieldDecision | None:
         """The stop for the nearest pedestrian the car must yield to, or None (drive on).
 
         position (2,) and speed of the car; its lane ``lane_start -> lane_goal``; the road's line
         through ``road_start`` with unit ``road_normal`` (left of the driving direction) and the
         room (left, right) the car's centre has from it; pedestrians and velocities (N, 2); radii
-        (N,) (R plus any uncertainty margin)."""
+        (N,) (R plus any uncertainty margin); ``lateral_sigmas`` (N,) sigma of each velocity across
+        the road (m/s; None: the velocities are taken as exact) and ``z`` its quantile."""
         c = self.config
         if len(pedestrians) == 0:
             return None
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
         s_car = float((position - road_start) @ axis)
+        fast = np.zeros(len(pedestrians))
+        if lateral_sigmas is not None:
+            fast = z * np.asarray(lateral_sigmas, dtype=float)
         stop_s, j = _blocking(
             np.ascontiguousarray(pedestrians, dtype=float), np.ascontiguousarray(velocities, dtype=float),
             np.ascontiguousarray(radii, dtype=float), np.ascontiguousarray(road_start, dtype=float), axis,
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
-            max(float(speed), 0.1),
+            max(float(speed), 0.1), np.ascontiguousarray(fast),
         )  # fmt: skip
         best = None if j < 0 else (stop_s, j)
         if best is None:
@@ -130,44 +143,56 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v):  # fmt: skip
+              clear_time, gap, v, fast):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
     radius of the corridor, ahead of the car, and leave no room on either side (a walker crossing
-    toward a side closes it); one the car passes well before they block is skipped."""
+    toward a side closes it); one the car passes well before they block, at their estimated
+    velocity and at it raised by ``fast[j]`` toward the road's line, is skipped."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
-    block = np.empty(n_t, dtype=np.bool_)
     best_stop, best_j = 0.0, -1
     for j in range(peds.shape[0]):
         r = radii[j]
         v_lat = vels[j, 0] * normal[0] + vels[j, 1] * normal[1]
         walks_left = v_lat > crossing
         walks_right = v_lat < -crossing
+        d0 = (peds[j, 0] - road_start[0]) * normal[0] + (peds[j, 1] - road_start[1]) * normal[1]
+        toward = -1.0 if d0 > 0.0 else 1.0
         first = -1
         low = np.inf
-        for k in range(n_t):
-            px = peds[j, 0] + vels[j, 0] * ts[k] - road_start[0]
-            py = peds[j, 1] + vels[j, 1] * ts[k] - road_start[1]
-            s[k] = px * axis[0] + py * axis[1]
-            d = px * normal[0] + py * normal[1]
-            room_left = (d + r <= left - tol) and not walks_left
-            room_right = (d - r >= -right + tol) and not walks_right
-            near = (d - r < left) and (d + r > -right)
-            block[k] = near and s[k] > s_car and not room_left and not room_right
-            if block[k]:
-                if first < 0:
-                    first = k
-                low = min(low, s[k])
+        begins = np.inf  # the earliest blocking of either velocity
+        for h in range(2):
+            if h == 1 and (first <= 0 or not fast[j] > 0.0):
+                break
+            vx = vels[j, 0] + (toward * fast[j] * normal[0] if h == 1 else 0.0)
+            vy = vels[j, 1] + (toward * fast[j] * normal[1] if h == 1 else 0.0)
+            for k in range(n_t):
+                px = peds[j, 0] + vx * ts[k] - road_start[0]
+                py = peds[j, 1] + vy * ts[k] - road_start[1]
+                sk = px * axis[0] + py * axis[1]
+                if h == 0:
+                    s[k] = sk
+                d = px * normal[0] + py * normal[1]
+                room_left = (d + r <= left - tol) and not walks_left
+                room_right = (d - r >= -right + tol) and not walks_right
+                near = (d - r < left) and (d + r > -right)
+                if near and sk > s_car and not room_left and not room_right:
+                    begins = min(begins, ts[k])
+                    if h == 1:
+                        break
+                    if first < 0:
+                        first = k
+                    low = min(low, sk)
         if first < 0:
             continue
         if first > 0:
             top = s[0]
             for k in range(1, first):
                 top = max(top, s[k])
-            if (top + r - s_car) / v + clear_time <= ts[first]:
+            if (top + r - s_car) / v + clear_time <= begins:
                 continue  # the car is past them well before they block
         stop = low - r - gap
         if best_j < 0 or stop < best_stop:
