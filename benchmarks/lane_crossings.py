@@ -108,6 +108,7 @@ def main() -> None:
     ap.add_argument("--state", choices=["perceived", "true"], default="perceived")
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's, 1)")
     ap.add_argument("--caution", choices=["on", "off"], help="the trust-aware speed bound (default: on)")
+    ap.add_argument("--set", nargs="*", default=[], help="[control] options, e.g. caution_pass_speed=3")
     ap.add_argument("--only", type=int, nargs="+", help="drive only these runs (their worlds as in the full set)")
     ap.add_argument("--json", help="write every run's summary to this file")
     args = ap.parse_args()
@@ -120,6 +121,9 @@ def main() -> None:
             continue
         if args.caution is not None:
             sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=args.caution == "on"))
+        if args.set:
+            sets = {k: float(v) for k, v in (kv.split("=") for kv in args.set)}
+            sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, **sets))
         r = run_drive(sc, sensing="keypoints", seed=k, state=args.state, capture_rate=args.rate)
         m = r.metrics()
         room_a, room_b = brake_room(sc, r)
