@@ -23,7 +23,13 @@ R = np.array([2.5])
 
 def _decide(ped, vel, car=(0.0, 0.0), speed=8.0, radii=R, lateral=None):
     return Y.decide(np.array(car), speed, pedestrians=np.array([ped]), velocities=np.array([vel]), radii=radii,
-                    lateral_sigmas=None if lateral is None else np.array([lateral]), **ROAD)  # fmt: skip
+                    covariances=None if lateral is None else _velocity_cov(lateral), **ROAD)  # fmt: skip
+
+
+def _velocity_cov(sigma_across):
+    """A (1, 4, 4) covariance whose velocity sigma across the road (+y here) is ``sigma_across``."""
+    c = np.diag([0.01, 0.01, 0.04, sigma_across**2])
+    return c[None]
 
 
 def test_a_pedestrian_standing_in_the_lane_is_stopped_for_short_of_r():
@@ -70,6 +76,9 @@ def test_an_uncertain_crossing_speed_is_passed_in_front_only_if_its_upper_bound_
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.6) is not None
     assert _decide((10.0, -8.0), (0.0, 1.0), speed=15.0, lateral=0.6) is not None  # the other side
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.1) is None  # known well enough
+    with pytest.raises(ValueError, match=r"covariances must have shape \(1, 4, 4\)"):
+        Y.decide(np.zeros(2), 8.0, pedestrians=np.array([(10.0, 8.0)]), velocities=np.zeros((1, 2)),
+                 radii=R, covariances=np.zeros((1, 2, 2)), **ROAD)  # fmt: skip
     # the bound never makes someone block who does not at the estimated velocity
     assert _decide((12.0, 4.0), (0.0, 0.0), lateral=0.6) is None
     assert _decide((25.0, 4.2), (0.0, 0.0), lateral=0.6) is None

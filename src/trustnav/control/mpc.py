@@ -236,12 +236,12 @@ class MpcController:
         if self._yielder is not None and len(peds):  # the yielding layer may stop the car short of someone
             road, lane = self._road, p.cost
             radii = self._radii(len(peds), margins)
-            lateral = None  # with caution, the velocity's uncertainty too (caution off: the paper's controller)
-            if covariances is not None and self.config.caution is not None:
-                lateral = _lateral_sigmas(covariances, road.normal)
+            # with caution, the velocity's uncertainty too (caution off: the paper's controller)
+            cov = covariances if self.config.caution is not None and np.ndim(covariances) == 3 else None
+            cov = cov if cov is None or np.shape(cov)[1] == 4 else None  # position-only covariances: no velocity
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
-                                        peds, vels, radii, lateral, _quantile(self.config.confidence))  # fmt: skip
+                                        peds, vels, radii, cov, _quantile(self.config.confidence))  # fmt: skip
             if stop is not None:
                 ref = lane.reference
                 capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
@@ -457,13 +457,3 @@ class MpcController:
         if name == "braking":
             source, status = "braking", SolveStatus.FALLBACK
         return u, source, status, chk.first_row, chk.worst, sv, states, note
-
-
-def _lateral_sigmas(covariances: ArrayLike, normal: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """Sigma (m/s) of each pedestrian's estimated velocity across the road (along its unit
-    ``normal``); None for position-only covariances (N, 2, 2)."""
-    c = np.asarray(covariances, dtype=float)
-    if c.ndim != 3 or c.shape[1] != 4:
-        return None
-    n = np.asarray(normal, dtype=float)
-    return np.sqrt(np.maximum(np.einsum("i,nij,j->n", n, c[:, 2:, 2:], n), 0.0))

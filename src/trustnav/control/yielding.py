@@ -22,8 +22,9 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
 - **Yield** to a blocking pedestrian unless the car, at its present speed, has passed them
   ``clear_time`` s before their blocking begins. The stop is ``r + gap`` short of the nearest place
   the pedestrian blocks; the speed is capped to brake there at ``deceleration``.
-- **An uncertain velocity** (``lateral_sigmas``: the estimate's sigma of the speed across the
-  road, from its covariance; ``z``: the one-sided quantile of the controller's confidence) enters
+- **An uncertain velocity** (``covariances``: the estimates' covariances of (x, y, v_x, v_y), whose
+  sigma of the speed across the road counts; ``z``: the one-sided quantile of the controller's
+  confidence) enters
   the judgement "the car is past them well before they block" on the unsafe side: their blocking
   is taken to begin when it would at their estimated velocity raised by z sigma toward the road's
   line (a velocity estimated from a frame or two lags a step-out), so the car passes in front
@@ -46,6 +47,8 @@ from numpy.typing import NDArray
 from trustnav.control._validate import require_positive
 
 __all__ = ["YieldConfig", "YieldDecision", "Yielder"]
+
+_NO_COVARIANCES = np.zeros((0, 4, 4))
 
 
 @dataclass(frozen=True)
@@ -95,7 +98,7 @@ class Yielder:
         pedestrians: NDArray[np.float64],
         velocities: NDArray[np.float64],
         radii: NDArray[np.float64],
-        lateral_sigmas: NDArray[np.float64] | None = None,
+        covariances: NDArray[np.float64] | None = None,
         z: float = 1.645,
     ) -> YieldDecision | None:
         """The stop for the nearest pedestrian the car must yield to, or None (drive on).
@@ -103,23 +106,23 @@ class Yielder:
         position (2,) and speed of the car; its lane ``lane_start -> lane_goal``; the road's line
         through ``road_start`` with unit ``road_normal`` (left of the driving direction) and the
         room (left, right) the car's centre has from it; pedestrians and velocities (N, 2); radii
-        (N,) (R plus any uncertainty margin); ``lateral_sigmas`` (N,) sigma of each velocity across
-        the road (m/s; None: the velocities are taken as exact) and ``z`` its quantile."""
+        (N,) (R plus any uncertainty margin); ``covariances`` (N, 4, 4) of each estimated (x, y, v_x,
+        v_y) (None: the velocities are taken as exact) and ``z`` the quantile of its velocity."""
         c = self.config
         if len(pedestrians) == 0:
             return None
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
         s_car = float((position - road_start) @ axis)
-        fast = np.zeros(len(pedestrians))
-        if lateral_sigmas is not None:
-            fast = z * np.asarray(lateral_sigmas, dtype=float)
+        cov = _NO_COVARIANCES if covariances is None else np.ascontiguousarray(covariances, dtype=float)
+        if cov.shape[0] and cov.shape != (len(pedestrians), 4, 4):
+            raise ValueError(f"covariances must have shape ({len(pedestrians)}, 4, 4), got {cov.shape}")
         stop_s, j = _blocking(
             np.ascontiguousarray(pedestrians, dtype=float), np.ascontiguousarray(velocities, dtype=float),
             np.ascontiguousarray(radii, dtype=float), np.ascontiguousarray(road_start, dtype=float), axis,
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
-            max(float(speed), 0.1), np.ascontiguousarray(fast),
+            max(float(speed), 0.1), cov, float(z),
         )  # fmt: skip
         best = None if j < 0 else (stop_s, j)
         if best is None:
@@ -143,13 +146,14 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, fast):  # fmt: skip
+              clear_time, gap, v, cov, z):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
     radius of the corridor, ahead of the car, and leave no room on either side (a walker crossing
     toward a side closes it); one the car passes well before they block, at their estimated
-    velocity and at it raised by ``fast[j]`` toward the road's line, is skipped."""
+    velocity and at it raised by z sigma (its component across the road, from ``cov`` (N, 4, 4);
+    none where ``cov`` is empty) toward the road's line, is skipped."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
@@ -164,11 +168,18 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
         first = -1
         low = np.inf
         begins = np.inf  # the earliest blocking of either velocity
+        fast = 0.0
         for h in range(2):
-            if h == 1 and (first <= 0 or not fast[j] > 0.0):
-                break
-            vx = vels[j, 0] + (toward * fast[j] * normal[0] if h == 1 else 0.0)
-            vy = vels[j, 1] + (toward * fast[j] * normal[1] if h == 1 else 0.0)
+            if h == 1:
+                if first <= 0 or cov.shape[0] == 0:
+                    break
+                var = (cov[j, 2, 2] * normal[0] * normal[0] + 2.0 * cov[j, 2, 3] * normal[0] * normal[1]
+                       + cov[j, 3, 3] * normal[1] * normal[1])  # fmt: skip
+                fast = z * math.sqrt(max(var, 0.0))  # only where the estimated velocity leaves the car first
+                if not fast > 0.0:
+                    break
+            vx = vels[j, 0] + toward * fast * normal[0]
+            vy = vels[j, 1] + toward * fast * normal[1]
             for k in range(n_t):
                 px = peds[j, 0] + vx * ts[k] - road_start[0]
                 py = peds[j, 1] + vy * ts[k] - road_start[1]
