@@ -14,6 +14,8 @@ car knew at once) and (b) from the moment the camera could have shown it (:func:
     python benchmarks/lane_crossings.py --runs 20 --state true
     python benchmarks/lane_crossings.py --rate 10      # the camera at 10 frames/s
     python benchmarks/lane_crossings.py --caution off  # without the trust-aware speed bound
+    python benchmarks/lane_crossings.py --seed 1       # 100 other worlds
+    python benchmarks/lane_crossings.py --only 22 70 --set caution_unseen_frames=1
 """
 
 from __future__ import annotations
