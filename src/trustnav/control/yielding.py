@@ -22,22 +22,21 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
 - **Yield** to a blocking pedestrian unless the car, at its present speed, has passed them
   ``clear_time`` s before their blocking begins. The stop is ``r + gap`` short of the nearest place
   the pedestrian blocks; the speed is capped to brake there at ``deceleration``.
-- **An uncertain velocity** (``covariances``: the estimates' covariances of (x, y, v_x, v_y), whose
-  sigma of the speed across the road counts; ``z``: the one-sided quantile of the controller's
-  confidence) enters
-  the judgement "the car is past them well before they block" on the unsafe side: their blocking
-  is taken to begin when it would at their estimated velocity raised by z sigma toward the road's
-  line (a velocity estimated from a frame or two lags a step-out), so the car passes in front
-  only if it would at that speed too. Who blocks is judged at the estimated velocity, as the MPC
-  predicts: the bound never makes someone standing at the kerb a crosser.
-
+- **An uncertain velocity** (``covariances``: the estimates' covariances of (x, y, v_x, v_y), of
+  which the sigma of the speed across the road counts; ``z``: the one-sided quantile of the
+  controller's confidence) enters the judgement "the car is past them well before they block" on
+  the unsafe side: their blocking is taken to begin when it would at their estimated velocity
+  raised by z sigma toward the road's line (a velocity estimated from a frame or two lags a
+  step-out), so the car passes in front only if it would at that speed too. Who blocks is judged
+  at the estimated velocity, as the MPC predicts: the bound never makes someone standing at the
+  kerb a crosser.
 - **Whom it waits for is remembered** (given the step's ``time`` and ``safety_radius``, as the
   controller does with caution on). A pedestrian the car yields to who then vanishes from its
   inputs (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she
   crosses in front of the stopped car, cut off by the image's edge) is kept, predicted at her last
-  velocity, and blocks while that prediction is within R of the lane's line (the MPC, not knowing
-  her, would drive it), ahead of the car, for at most ``memory`` s. The tracker dropping a track says that the camera no
-  longer sees her, not that she left the car's way.
+  velocity, and blocks while that prediction is ahead of the car and within R of the lane's line
+  (the MPC, not knowing her, would drive that line), for at most ``memory`` s. A dropped track says
+  that the camera no longer sees her, not that she has left the car's way.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
