@@ -79,6 +79,21 @@ def test_less_trust_never_allows_more_speed(s, d, t1, t2):
     assert v_lo <= v_hi + 1e-9
 
 
+def test_an_unseen_time_reaches_whatever_the_trust():
+    """``unseen`` (a camera period: she may have started walking since the last frame) widens
+    the reach of trusted and untrusted pedestrians alike, by walking_speed x unseen."""
+    assert bound((15.0, 3.3), 1.0) is None
+    seen = CautionConfig(unseen=1.0)
+    trusted = bound((15.0, 3.3), 1.0, seen)
+    assert trusted is not None and trusted.reach == pytest.approx(2.5 + 1.4)
+    assert bound((15.0, 3.3), 0.2, seen).reach == pytest.approx(bound((15.0, 3.3), 0.2).reach + 1.4)
+    on = ControlSpec(caution_unseen_frames=1.0).config(camera_rate=10.0).caution
+    assert on is not None and on.unseen == pytest.approx(0.1)
+    assert ControlSpec().config().caution.unseen == 0.0  # the default: the trust-weighted reach only
+    with pytest.raises(ValueError, match="caution unseen must be a finite number >= 0"):
+        CautionConfig(unseen=-0.5)
+
+
 def test_reaction_time_and_bad_options_are_named():
     assert reaction_time(1.0, 2.0, 0.0, 0.1, 0.05) == pytest.approx(2.15)
     assert reaction_time(10.0) == pytest.approx(0.2)

@@ -154,7 +154,8 @@ def test_a_relaxed_plan_gives_up_room_to_the_pedestrian_not_the_road():
     from trustnav.sim.driving.compare import ConstantTrustEnvironment
     from trustnav.sim.driving.episode import drive_metrics, make_sensor, prepare_scenario
 
-    sc = prepare_scenario(load_drive_scenario(ROOT / "examples/scenarios/step-out.toml"), None, None)
+    sc = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
+    sc = prepare_scenario(dataclasses.replace(sc, pedestrians=sc.pedestrians[:1]), None, None)  # the texter alone
     world = ConstantTrustEnvironment(DriveEnvironment(sc, seed=0, sensor=make_sensor("keypoints", None, None)), 1.0)
     r = drive(world, "keypoints")
     m = drive_metrics(r)

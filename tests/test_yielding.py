@@ -21,8 +21,15 @@ Y = Yielder(YieldConfig())
 R = np.array([2.5])
 
 
-def _decide(ped, vel, car=(0.0, 0.0), speed=8.0, radii=R):
-    return Y.decide(np.array(car), speed, pedestrians=np.array([ped]), velocities=np.array([vel]), radii=radii, **ROAD)
+def _decide(ped, vel, car=(0.0, 0.0), speed=8.0, radii=R, lateral=None):
+    return Y.decide(np.array(car), speed, pedestrians=np.array([ped]), velocities=np.array([vel]), radii=radii,
+                    covariances=None if lateral is None else _velocity_cov(lateral), **ROAD)  # fmt: skip
+
+
+def _velocity_cov(sigma_across):
+    """A (1, 4, 4) covariance whose velocity sigma across the road (+y here) is ``sigma_across``."""
+    c = np.diag([0.01, 0.01, 0.04, sigma_across**2])
+    return c[None]
 
 
 def test_a_pedestrian_standing_in_the_lane_is_stopped_for_short_of_r():
@@ -59,6 +66,55 @@ def test_the_car_goes_first_only_when_it_is_past_well_before_they_block():
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0) is None
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=4.0) is not None
     assert _decide((10.0, 8.0), (0.0, -1.0), speed=0.0) is not None
+
+
+def test_an_uncertain_crossing_speed_is_passed_in_front_only_if_its_upper_bound_allows():
+    # the walker of the test above, her speed across (1 m/s, estimated from two frames) uncertain by
+    # sigma 0.6 m/s (z sigma ~1 m/s): at 2 m/s she would block after 1.7 s, before the car at 15 m/s is
+    # past (1.8 s)
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.0) is None
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.6) is not None
+    assert _decide((10.0, -8.0), (0.0, 1.0), speed=15.0, lateral=0.6) is not None  # the other side
+    assert _decide((10.0, 8.0), (0.0, -1.0), speed=15.0, lateral=0.1) is None  # known well enough
+    with pytest.raises(ValueError, match=r"covariances must have shape \(1, 4, 4\)"):
+        Y.decide(np.zeros(2), 8.0, pedestrians=np.array([(10.0, 8.0)]), velocities=np.zeros((1, 2)),
+                 radii=R, covariances=np.zeros((1, 2, 2)), **ROAD)  # fmt: skip
+    # the bound never makes someone block who does not at the estimated velocity
+    assert _decide((12.0, 4.0), (0.0, 0.0), lateral=0.6) is None
+    assert _decide((25.0, 4.2), (0.0, 0.0), lateral=0.6) is None
+
+
+def test_a_crosser_the_car_waits_for_is_remembered_when_her_track_vanishes():
+    """Her track dropped while she crosses in front of the stopped car (cut off by the image's
+    edge): the car keeps waiting for her prediction until it is R from the lane's line, or for
+    ``memory`` seconds; without ``time`` the layer is stateless, as before."""
+    y = Yielder(YieldConfig())
+    none = np.zeros((0, 2))
+
+    def step(t, peds, vels, car=(0.0, 0.0), speed=0.0):
+        return y.decide(np.array(car), speed, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 3.5),
+                        time=t, safety_radius=2.5, **ROAD)  # fmt: skip
+
+    crossing = np.array([[4.0, 0.5]]), np.array([[0.0, -0.6]])  # 4 m ahead, walking right at 0.6 m/s
+    assert step(0.0, *crossing) is not None
+    held = step(0.5, none, none)  # gone from the inputs: still waited for
+    assert held is not None and held.pedestrian == -1 and "no longer sees" in held.note and held.speed_cap < 2.0
+    # at 0.6 m/s she is R from the lane's line (0.5 - 0.6 t <= -2.5) after 5 s
+    assert step(4.9, none, none) is not None
+    assert step(5.1, none, none) is None
+    assert step(5.2, none, none) is None  # forgotten
+    # seen again (within rematch of her prediction): judged from the inputs as usual
+    assert step(10.0, *crossing) is not None
+    again = step(10.5, np.array([[4.0, 0.3]]), np.array([[0.0, -0.6]]))
+    assert again is not None and again.pedestrian == 0 and "cannot pass" in again.note
+    # someone standing still who vanishes is waited for at most ``memory`` s
+    y.reset()
+    assert step(0.0, np.array([[4.0, 0.0]]), np.zeros((1, 2))) is not None
+    assert step(7.9, none, none) is not None and step(8.1, none, none) is None
+    # stateless without the time
+    y.reset()
+    assert _decide((4.0, 0.5), (0.0, -0.6)) is not None
+    assert Y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0), **ROAD) is None
 
 
 def test_uncertainty_widens_who_blocks():

@@ -16,9 +16,11 @@ treats an unobserved step-out the same way).
 For pedestrian j at ``s`` metres ahead along the car's heading and ``d`` metres beside its line,
 with trust ``theta`` and radius ``r`` (R plus the estimate's uncertainty margin):
 
-- **reach**: ``rho = walking_speed * (1 - theta) ** trust_exponent * reaction``, where
+- **reach**: ``rho = walking_speed * ((1 - theta) ** trust_exponent * reaction + unseen)``, where
   ``reaction`` is the time before a step-out would show (camera period times the frames the
-  tracker needs to see motion, plus the perception and control latencies);
+  tracker needs to see motion, plus the perception and control latencies) and ``unseen`` a time
+  counted whatever the trust (what the camera's period hides of anyone: she may have started
+  walking since the last frame; 0 by default);
 - **conflict**: if ``d >= r + rho`` the car's line never comes within ``r`` of the region: no
   bound (a trusted pedestrian, or one far from the path). Else the line enters it
   ``g = sqrt((r + rho)^2 - d^2)`` before the pedestrian's abreast point;
@@ -78,10 +80,11 @@ class CautionConfig:
     deceleration: float = 4.0
     pass_speed: float = 4.0
     ease: float = 3.0
+    unseen: float = 0.0
 
     def __post_init__(self) -> None:
-        names = ("reaction", "walking_speed", "trust_exponent", "deceleration", "pass_speed", "ease")
-        require_positive("caution", self, names, zero_ok=("reaction", "walking_speed", "pass_speed"))
+        names = ("reaction", "walking_speed", "trust_exponent", "deceleration", "pass_speed", "ease", "unseen")
+        require_positive("caution", self, names, zero_ok=("reaction", "walking_speed", "pass_speed", "unseen"))
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,7 @@ def caution_bound(
     px, py = float(position[0]), float(position[1])
     t, b = c.reaction, c.deceleration
     reach_speed = c.walking_speed * t
+    unseen = c.walking_speed * c.unseen
     best: tuple[float, int, float, float] | None = None
     # plain floats: a step has a few pedestrians, and numpy's per-call cost would dominate
     for j, ((qx, qy), theta, r) in enumerate(zip(pedestrians.tolist(), trusts.tolist(), radii.tolist(), strict=True)):
@@ -123,7 +127,7 @@ def caution_bound(
         if s <= 0.0:
             continue
         d = abs(rx * hy - ry * hx)  # beside the path's line
-        reach = r + reach_speed * (1.0 - min(max(theta, 0.0), 1.0)) ** c.trust_exponent
+        reach = r + reach_speed * (1.0 - min(max(theta, 0.0), 1.0)) ** c.trust_exponent + unseen
         if d >= reach:
             continue
         room = s - math.sqrt(reach * reach - d * d)

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan
-from trustnav.control.barrier import Barrier, RoadEdgeBarrier, uncertainty_margins
+from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
 from trustnav.control.caution import caution_bound
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
@@ -128,6 +128,8 @@ class MpcController:
     def reset(self) -> None:
         if self._deadlock is not None:
             self._deadlock.reset()
+        if self._yielder is not None:
+            self._yielder.reset()
         self._plan: NDArray[np.float64] | None = None
         self._last_control = np.zeros(self.model.nu)
         self._issued: deque[tuple[float, NDArray[np.float64]]] = deque()  # (time sent, command)
@@ -233,12 +235,18 @@ class MpcController:
             detour = self._deadlock.note
             if waypoint is not None:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
-        if self._yielder is not None and len(peds):  # the yielding layer may stop the car short of someone
+        # the yielding layer may stop the car short of someone (with caution, also someone it remembers)
+        if self._yielder is not None and (len(peds) or self.config.caution is not None):
             road, lane = self._road, p.cost
             radii = self._radii(len(peds), margins)
+            # with caution, the velocity's uncertainty too (caution off: the paper's controller)
+            cov = covariances if self.config.caution is not None and np.ndim(covariances) == 3 else None
+            cov = cov if cov is None or np.shape(cov)[1] == 4 else None  # position-only covariances: no velocity
+            held = (now, self.config.safety_radius) if self.config.caution is not None else (None, None)
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
-                                        peds, vels, radii)  # fmt: skip
+                                        peds, vels, radii, cov, _quantile(self.config.confidence),
+                                        *held)  # fmt: skip
             if stop is not None:
                 ref = lane.reference
                 capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))

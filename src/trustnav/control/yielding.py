@@ -22,6 +22,21 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
 - **Yield** to a blocking pedestrian unless the car, at its present speed, has passed them
   ``clear_time`` s before their blocking begins. The stop is ``r + gap`` short of the nearest place
   the pedestrian blocks; the speed is capped to brake there at ``deceleration``.
+- **An uncertain velocity** (``covariances``: the estimates' covariances of (x, y, v_x, v_y), of
+  which the sigma of the speed across the road counts; ``z``: the one-sided quantile of the
+  controller's confidence) enters the judgement "the car is past them well before they block" on
+  the unsafe side: their blocking is taken to begin when it would at their estimated velocity
+  raised by z sigma toward the road's line (a velocity estimated from a frame or two lags a
+  step-out), so the car passes in front only if it would at that speed too. Who blocks is judged
+  at the estimated velocity, as the MPC predicts: the bound never makes someone standing at the
+  kerb a crosser.
+- **Whom it waits for is remembered** (given the step's ``time`` and ``safety_radius``, as the
+  controller does with caution on). A pedestrian the car yields to who then vanishes from its
+  inputs (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she
+  crosses in front of the stopped car, cut off by the image's edge) is kept, predicted at her last
+  velocity, and blocks while that prediction is ahead of the car and within R of the lane's line
+  (the MPC, not knowing her, would drive that line), for at most ``memory`` s. A dropped track says
+  that the camera no longer sees her, not that she has left the car's way.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -40,6 +55,8 @@ from trustnav.control._validate import require_positive
 
 __all__ = ["YieldConfig", "YieldDecision", "Yielder"]
 
+_NO_COVARIANCES = np.zeros((0, 4, 4))
+
 
 @dataclass(frozen=True)
 class YieldConfig:
@@ -53,16 +70,20 @@ class YieldConfig:
     tolerance: float = 0.1
     crossing_speed: float = 0.3
     clear_time: float = 1.0
+    rematch: float = 2.0
+    memory: float = 8.0
 
     def __post_init__(self) -> None:
-        names = ("lookahead", "sample", "deceleration", "gap", "tolerance", "crossing_speed", "clear_time")
+        names = ("lookahead", "sample", "deceleration", "gap", "tolerance", "crossing_speed", "clear_time",
+                 "rematch", "memory")  # fmt: skip
         require_positive("yielding", self, names)
 
 
 @dataclass(frozen=True)
 class YieldDecision:
     """Where the car must stop (``stop``: a point on its lane), the speed cap that brakes there, the
-    pedestrian it yields to (index into this step's pedestrians) and a note for the step's report."""
+    pedestrian it yields to (index into this step's pedestrians; -1: one it remembers, no longer
+    among them) and a note for the step's report."""
 
     stop: NDArray[np.float64]
     speed_cap: float
@@ -71,10 +92,16 @@ class YieldDecision:
 
 
 class Yielder:
-    """Stateless per step: call :meth:`decide` with the step's car and pedestrians."""
+    """Call :meth:`decide` with the step's car and pedestrians. Its one state: the pedestrian it
+    last yielded to (position, velocity, time), for when she vanishes from the inputs (module
+    docstring); :meth:`reset` forgets her."""
 
     def __init__(self, config: YieldConfig) -> None:
         self.config = config
+        self._memory: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None
+
+    def reset(self) -> None:
+        self._memory = None
 
     def decide(
         self,
@@ -88,26 +115,55 @@ class Yielder:
         pedestrians: NDArray[np.float64],
         velocities: NDArray[np.float64],
         radii: NDArray[np.float64],
+        covariances: NDArray[np.float64] | None = None,
+        z: float = 1.645,
+        time: float | None = None,
+        safety_radius: float | None = None,
     ) -> YieldDecision | None:
         """The stop for the nearest pedestrian the car must yield to, or None (drive on).
 
         position (2,) and speed of the car; its lane ``lane_start -> lane_goal``; the road's line
         through ``road_start`` with unit ``road_normal`` (left of the driving direction) and the
         room (left, right) the car's centre has from it; pedestrians and velocities (N, 2); radii
-        (N,) (R plus any uncertainty margin)."""
+        (N,) (R plus any uncertainty margin); ``covariances`` (N, 4, 4) of each estimated (x, y, v_x,
+        v_y) (None: the velocities are taken as exact) and ``z`` the quantile of its velocity;
+        ``time`` (s) and ``safety_radius`` (R): remember whom the car waits for (None: stateless)."""
         c = self.config
-        if len(pedestrians) == 0:
-            return None
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
         s_car = float((position - road_start) @ axis)
+        n_real = len(pedestrians)
+        remember = time is not None and safety_radius is not None
+        d_lane = float((lane_start - road_start) @ road_normal)  # the lane's line, where the car drives
+        if remember and self._memory is not None:  # she vanished from the inputs? keep her prediction
+            pos, vel, t0 = self._memory
+            pred = pos + vel * (float(time) - t0)
+            near = float(safety_radius)
+            gone = (abs(float((pred - road_start) @ road_normal) - d_lane) >= near
+                    or float((pred - road_start) @ axis) <= s_car or float(time) - t0 > c.memory)  # fmt: skip
+            seen = n_real > 0 and float(np.min(np.hypot(*(np.asarray(pedestrians) - pred).T))) <= c.rematch
+            if gone or seen:
+                self._memory = None
+            else:
+                pedestrians = np.vstack([np.asarray(pedestrians, dtype=float).reshape(-1, 2), pred])
+                velocities = np.vstack([np.asarray(velocities, dtype=float).reshape(-1, 2), vel])
+                radii = np.append(np.asarray(radii, dtype=float), near)
+                if covariances is not None:
+                    covariances = np.concatenate([np.asarray(covariances, dtype=float), np.zeros((1, 4, 4))])
+        if len(pedestrians) == 0:
+            return None
+        cov = _NO_COVARIANCES if covariances is None else np.ascontiguousarray(covariances, dtype=float)
+        if cov.shape[0] and cov.shape != (len(pedestrians), 4, 4):
+            raise ValueError(f"covariances must have shape ({len(pedestrians)}, 4, 4), got {cov.shape}")
         stop_s, j = _blocking(
             np.ascontiguousarray(pedestrians, dtype=float), np.ascontiguousarray(velocities, dtype=float),
             np.ascontiguousarray(radii, dtype=float), np.ascontiguousarray(road_start, dtype=float), axis,
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
-            max(float(speed), 0.1),
+            max(float(speed), 0.1), cov, float(z), n_real, d_lane,
         )  # fmt: skip
+        if remember and 0 <= j < n_real:
+            self._memory = (np.array(pedestrians[j], dtype=float), np.array(velocities[j], dtype=float), float(time))
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None
@@ -121,53 +177,85 @@ class Yielder:
         along = s_lane + (stop_s - s_car) / max(float(axis @ lane_dir), 1e-6)
         along = float(np.clip(along, min(0.01, length), length))  # never the lane's start: a lane needs a length
         stop = lane_start + along * lane_dir
+        who = "a pedestrian the car cannot pass on the road"
+        if j >= n_real:
+            who = "a pedestrian it no longer sees, last seen crossing in front of it"
+            j = -1  # not one of this step's pedestrians
         if room_to_stop > 0:
-            note = f"yielding: stopping {room_to_stop:.1f} m ahead for a pedestrian the car cannot pass on the road"
+            note = f"yielding: stopping {room_to_stop:.1f} m ahead for {who}"
         else:
-            note = "yielding: waiting for a pedestrian the car cannot pass on the road"
+            note = f"yielding: waiting for {who}"
         return YieldDecision(stop, cap, j, note)
 
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
     radius of the corridor, ahead of the car, and leave no room on either side (a walker crossing
-    toward a side closes it); one the car passes well before they block is skipped."""
+    toward a side closes it); one the car passes well before they block, at their estimated
+    velocity and at it raised by z sigma (its component across the road, from ``cov`` (N, 4, 4);
+    none where ``cov`` is empty) toward the road's line, is skipped. Pedestrians from ``n_real`` on
+    are remembered, not seen: they block within their radius of the lane's line (``d_lane`` from the
+    road's line)."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
-    block = np.empty(n_t, dtype=np.bool_)
     best_stop, best_j = 0.0, -1
     for j in range(peds.shape[0]):
         r = radii[j]
         v_lat = vels[j, 0] * normal[0] + vels[j, 1] * normal[1]
         walks_left = v_lat > crossing
         walks_right = v_lat < -crossing
+        d0 = (peds[j, 0] - road_start[0]) * normal[0] + (peds[j, 1] - road_start[1]) * normal[1]
+        toward = -1.0 if d0 > 0.0 else 1.0
         first = -1
         low = np.inf
-        for k in range(n_t):
-            px = peds[j, 0] + vels[j, 0] * ts[k] - road_start[0]
-            py = peds[j, 1] + vels[j, 1] * ts[k] - road_start[1]
-            s[k] = px * axis[0] + py * axis[1]
-            d = px * normal[0] + py * normal[1]
-            room_left = (d + r <= left - tol) and not walks_left
-            room_right = (d - r >= -right + tol) and not walks_right
-            near = (d - r < left) and (d + r > -right)
-            block[k] = near and s[k] > s_car and not room_left and not room_right
-            if block[k]:
-                if first < 0:
-                    first = k
-                low = min(low, s[k])
+        begins = np.inf  # the earliest blocking of either velocity
+        fast = 0.0
+        for h in range(2):
+            if h == 1:
+                if first <= 0 or cov.shape[0] == 0:
+                    break
+                var = (cov[j, 2, 2] * normal[0] * normal[0] + 2.0 * cov[j, 2, 3] * normal[0] * normal[1]
+                       + cov[j, 3, 3] * normal[1] * normal[1])  # fmt: skip
+                fast = z * math.sqrt(max(var, 0.0))  # only where the estimated velocity leaves the car first
+                if not fast > 0.0:
+                    break
+            vx = vels[j, 0] + toward * fast * normal[0]
+            vy = vels[j, 1] + toward * fast * normal[1]
+            for k in range(n_t):
+                px = peds[j, 0] + vx * ts[k] - road_start[0]
+                py = peds[j, 1] + vy * ts[k] - road_start[1]
+                sk = px * axis[0] + py * axis[1]
+                if h == 0:
+                    s[k] = sk
+                d = px * normal[0] + py * normal[1]
+                room_left = (d + r <= left - tol) and not walks_left
+                room_right = (d - r >= -right + tol) and not walks_right
+                near = (d - r < left) and (d + r > -right)
+                # one it no longer sees (j >= n_real) blocks within r of the lane's line: the MPC,
+                # not knowing her, would not steer round her
+                if j >= n_real:
+                    blocks = abs(d - d_lane) < r and sk > s_car
+                else:
+                    blocks = near and sk > s_car and not room_left and not room_right
+                if blocks:
+                    begins = min(begins, ts[k])
+                    if h == 1:
+                        break
+                    if first < 0:
+                        first = k
+                    low = min(low, sk)
         if first < 0:
             continue
         if first > 0:
             top = s[0]
             for k in range(1, first):
                 top = max(top, s[k])
-            if (top + r - s_car) / v + clear_time <= ts[first]:
+            if (top + r - s_car) / v + clear_time <= begins:
                 continue  # the car is past them well before they block
         stop = low - r - gap
         if best_j < 0 or stop < best_stop:

@@ -150,7 +150,8 @@ class ControlSpec:
     reach, at ``caution_walking_speed`` times (1 - trust) ** ``caution_trust_exponent``, before
     the camera would show a step-out (``caution_confirm_frames`` camera periods plus the
     perception and command latencies and one control period), braking at
-    ``caution_deceleration``; never below ``caution_pass_speed`` (docs/controller.md)."""
+    ``caution_deceleration``; never below ``caution_pass_speed``; ``caution_unseen_frames`` camera
+    periods of walking counted whatever the trust (0: none; docs/controller.md)."""
 
     rate: Annotated[float, Number(0, 1000, lo_open=True, unit=" Hz")] = 20.0
     dt: Annotated[float, Number(lo=0, lo_open=True, unit=" s")] = 0.08
@@ -173,6 +174,7 @@ class ControlSpec:
     caution_deceleration: Annotated[float, Number(lo=0, lo_open=True, unit=" m/s^2")] = 4.0
     caution_pass_speed: Annotated[float, Number(lo=0, unit=" m/s")] = 4.0
     caution_confirm_frames: Annotated[float, NON_NEGATIVE] = 2.0
+    caution_unseen_frames: Annotated[float, NON_NEGATIVE] = 0.0
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -192,6 +194,7 @@ class ControlSpec:
             trust_exponent=self.caution_trust_exponent,
             deceleration=self.caution_deceleration,
             pass_speed=self.caution_pass_speed,
+            unseen=self.caution_unseen_frames / camera_rate,
         )
 
     def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> MpcConfig:
