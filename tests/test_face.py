@@ -199,3 +199,34 @@ def test_estimate_face_option_adds_the_fields(sequences, looking_weights, tmp_pa
     near = [r for r in recs if r["bbox"][3] - r["bbox"][1] >= 105]  # boxes run head top to soles
     assert near and all(r["eye_contact_face"] is not None for r in near)  # the woman walking toward the camera
     assert all(r["eye_contact_face"] is None for r in recs if r["bbox"][3] - r["bbox"][1] < 100)
+
+
+def test_shifted_fits_of_a_small_face_agree_or_lose_their_weight():
+    from trustnav.perception.face import FaceResult
+
+    def fit(p: float, c: float = 0.2, pitch: float = 0.0) -> FaceResult:
+        return FaceResult(p, c, 0.0, pitch, 0.0, 12.0, 0.0, 50.0)
+
+    combine = FaceEyeContact._combine
+    same = combine([fit(0.9)] * 5)
+    assert same.probability == pytest.approx(0.9) and same.confidence == pytest.approx(0.2)
+    # the mesh's pitch flips between -4 and -50 deg with a 1-px move (rendered frame_08): p_face is
+    # their mean and c_face falls with the disagreement, to 0 when half read "looking" and half "away"
+    flip = combine([fit(1.0, pitch=-4), fit(0.0, pitch=-50)] * 2)
+    assert flip.probability == pytest.approx(0.5) and flip.confidence == pytest.approx(0.0)
+    mixed = combine([fit(0.9), fit(0.9), fit(0.9), fit(0.9), fit(0.1, pitch=-50)])
+    assert 0.0 < mixed.confidence < same.confidence and mixed.pitch == 0.0  # median angles
+    # fits that found no face count against the confidence, none at all: not judged
+    assert combine([fit(0.9), None, None, None, None]).confidence == pytest.approx(0.2 / 5)
+    assert math.isnan(combine([None, FaceResult(face_px=11.0)]).probability)
+    # the verdict fused with LOOKING no longer flips: C_eye stays near p_looking whatever the fits say
+    for p_looking in (0.3, 0.48, 0.7):
+        assert abs(fuse_eye_contact(p_looking, flip.probability, flip.confidence) - p_looking) < 0.01
+
+
+def test_shift_fits_are_validated():
+    with pytest.raises(ValueError, match="shift_fits must be in"):
+        FaceConfig(shift_fits=0)
+    with pytest.raises(ValueError, match="shift_below_px"):
+        FaceConfig(shift_below_px=-1.0)
+    assert FaceConfig(shift_fits=1).shift_fits == 1

@@ -34,6 +34,7 @@ or far people: c_face = 0), and lets the face carry at most ``max_face_weight`` 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -102,6 +103,9 @@ class FaceConfig:
     min_eye_px, iris_gain_deg: gaze from the irises only on eyes this wide; degrees per unit offset.
     no_face_confidence: confidence of "no face found" on a large person (p_face = 0).
     max_face_weight: the largest share of C_eye the face may carry.
+    shift_fits, shift_below_px: a face smaller than ``shift_below_px`` is fitted ``shift_fits`` times
+    (1 = once), on its crop moved by 1 px each way, and read as their mean, its confidence shrunk by
+    their disagreement (:meth:`FaceEyeContact._combine`).
     """
 
     min_person_px: float = 100.0
@@ -119,6 +123,8 @@ class FaceConfig:
     iris_gain_deg: float = 40.0
     no_face_confidence: float = 0.4
     max_face_weight: float = 0.9
+    shift_fits: int = 5
+    shift_below_px: float = 20.0
 
     def __post_init__(self) -> None:
         if not self.min_person_px >= 0:
@@ -137,6 +143,10 @@ class FaceConfig:
             raise ValueError("blur_ref, min_eye_px and iris_gain_deg must be >= 0")
         if not 0.0 <= self.no_face_confidence <= 1.0 or not 0.0 <= self.max_face_weight <= 1.0:
             raise ValueError("no_face_confidence and max_face_weight must be in [0, 1]")
+        if not 1 <= self.shift_fits <= len(_SHIFTS) + 1:
+            raise ValueError(f"shift_fits must be in [1, {len(_SHIFTS) + 1}], got {self.shift_fits!r}")
+        if not self.shift_below_px >= 0:
+            raise ValueError(f"shift_below_px must be >= 0, got {self.shift_below_px!r}")
 
 
 @dataclass(frozen=True)
@@ -250,6 +260,8 @@ def fuse_eye_contact(p_looking: float, p_face: float, c_face: float, max_face_we
 # --- images ---------------------------------------------------------------------------------
 
 _HEAD = (0, 1, 2, 3, 4)  # nose, eyes, ears (COCO)
+#: whole-pixel moves of the head crop for the extra fits of a small face (``FaceConfig.shift_fits``)
+_SHIFTS = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
 
 
 def head_box(person: Person, min_conf: float = 0.3) -> tuple[float, float, float] | None:
@@ -361,10 +373,12 @@ class FaceEyeContact:
         return list(out)
 
     def analyse(self, frame: NDArray[np.uint8], person: Person) -> FaceResult:
-        """The face cue on one person of ``frame`` (NaN probability if too small or no head)."""
-        import time
+        """The face cue on one person of ``frame`` (NaN probability if too small or no head).
 
-        from trustnav.perception.mediapipe_backend import protobuf_warning_ignored
+        A face smaller than ``FaceConfig.shift_below_px`` is fitted ``shift_fits`` times, on the head
+        crop moved by whole frame pixels (test-time augmentation; :meth:`_combine`): at 10-15 px the
+        face mesh's angles change with a 1-pixel shift of its crop."""
+        import time
 
         cfg = self.config
         height = float(person.bbox[3] - person.bbox[1])
@@ -374,21 +388,60 @@ class FaceEyeContact:
         if head is None:
             return FaceResult()
         t0 = time.perf_counter()
+        cx, cy, side = head
+        # size of a face on this person, expected from the body: about 1/8 of the height
+        size = float(np.clip((height / 8 - cfg.face_px_min) / (cfg.face_px_full - cfg.face_px_min), 0.0, 1.0))
+        first = self._fit(frame, cx, cy, side)
+        if first is None:  # no face detected
+            seconds = time.perf_counter() - t0
+            if size > 0.5:
+                return FaceResult(0.0, cfg.no_face_confidence * size, seconds=seconds)
+            return FaceResult(seconds=seconds)
+        if first.face_px >= cfg.shift_below_px or cfg.shift_fits <= 1:
+            return dataclasses.replace(first, seconds=time.perf_counter() - t0)
+        fits = [first]
+        for dx, dy in _SHIFTS[: cfg.shift_fits - 1]:
+            fits.append(self._fit(frame, cx + dx, cy + dy, side))
+        return dataclasses.replace(self._combine(fits), seconds=time.perf_counter() - t0)
+
+    @staticmethod
+    def _combine(fits: Sequence[FaceResult | None]) -> FaceResult:
+        """One reading from fits of the same face on shifted crops (the first is the unshifted one):
+        p_face = the mean over the fits that gave a mesh, the angles their medians, and c_face = the
+        mean confidence x the share of fits that gave a mesh x the fits' agreement 1 - 2 sd(p_face)
+        (0 when half the fits read "looking" and half "away"): a verdict that flips with the crop's
+        placement carries little weight in C_eye (:func:`fuse_eye_contact`)."""
+        good = [f for f in fits if f is not None and not math.isnan(f.probability)]
+        if not good:
+            f0 = fits[0]
+            return FaceResult(face_px=f0.face_px if f0 is not None else 0.0)
+        p = np.array([f.probability for f in good])
+        agree = float(np.clip(1.0 - 2.0 * p.std(), 0.0, 1.0))
+        conf = float(np.mean([f.confidence for f in good])) * len(good) / len(fits) * agree
+
+        def med(name: str) -> float:
+            return float(np.median([getattr(f, name) for f in good]))
+
+        return FaceResult(
+            float(p.mean()), conf, med("yaw"), med("pitch"), med("gaze_yaw"), med("face_px"), 0.0, med("sharpness")
+        )
+
+    def _fit(self, frame: NDArray[np.uint8], cx: float, cy: float, side: float) -> FaceResult | None:
+        """Face detector and mesh on the head crop of ``side`` px around (cx, cy): p_face, c_face and
+        the angles (:func:`head_pose`, :func:`iris_offset`); None if no face is detected; NaN
+        probability if the mesh gives no landmarks."""
+        from trustnav.perception.mediapipe_backend import protobuf_warning_ignored
+
+        cfg = self.config
         g = self._load()
         h, w = frame.shape[:2]
         focal = w / 2 / math.tan(math.radians(cfg.fov_deg) / 2)
-        cx, cy, side = head
         crop, scale, x0, y0 = _crop(frame, cx, cy, side, cfg.crop_px)
-        # size of a face on this person, expected from the body: about 1/8 of the height
-        size = float(np.clip((height / 8 - cfg.face_px_min) / (cfg.face_px_full - cfg.face_px_min), 0.0, 1.0))
         with protobuf_warning_ignored():
             dets = g.detector.process({"image": crop}).detections or []
             dets = [dt for dt in dets if dt.score[0] >= cfg.min_detection]
             if not dets:
-                seconds = time.perf_counter() - t0
-                if size > 0.5:
-                    return FaceResult(0.0, cfg.no_face_confidence * size, seconds=seconds)
-                return FaceResult(seconds=seconds)
+                return None
 
             # the face nearest the crop's centre (the person's own, not a neighbour's)
             def dist(dt: Any) -> float:
@@ -406,10 +459,9 @@ class FaceEyeContact:
                 x_center=b.xmin + b.width / 2, y_center=b.ymin + b.height / 2, width=side_n, height=side_n, rotation=rot
             )
             mesh = g.mesh.process({"image": crop, "roi": rect}).landmarks
-        seconds = time.perf_counter() - t0
         face_px = b.height * n / scale
         if mesh is None:
-            return FaceResult(seconds=seconds, face_px=face_px)
+            return FaceResult(face_px=face_px)
         lm = np.array([(p.x * n / scale + x0, p.y * n / scale + y0, p.z * n / scale) for p in mesh.landmark])
         yaw, pitch = head_pose(lm, focal, w / 2, h / 2)
         r, eye_w = iris_offset(lm)
@@ -427,4 +479,4 @@ class FaceEyeContact:
         sharp = v / (v + cfg.blur_ref) if cfg.blur_ref > 0 else 1.0
         inside = float(np.mean((lm[:, 0] >= 0) & (lm[:, 0] < w) & (lm[:, 1] >= 0) & (lm[:, 1] < h)))
         conf = float(det.score[0]) * size_f * sharp * inside
-        return FaceResult(p, conf, yaw, pitch, gaze, face_px, seconds, v)
+        return FaceResult(p, conf, yaw, pitch, gaze, face_px, 0.0, v)
