@@ -19,7 +19,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, face_confidences
+from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, face_confidences, head_yaw
 from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact, FaceResult, fuse_eye_contact
 from trustnav.perception.looking import LookingModel, normalise_keypoints
 from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier, TemporalPhoneModel, fuse_crop
@@ -105,15 +105,31 @@ class FaceEyeContactCue(EyeContactCue):
         return self.veto(people, np.array(fused, dtype=float))
 
     def _face_yawed(self, person: Person, face: FaceResult) -> Person:
-        """``person`` with the face keypoints' confidences (LOOKING's input) from the face mesh's yaw
-        where a face of at least :data:`FACE_YAW_MIN_PX` was seen: BlazePose's ear depth often reads
-        the body's orientation (-80 deg where the mesh reads -30 deg); smaller faces keep the body's."""
+        """``person`` with the face keypoints' confidences (LOOKING's input) from a head yaw that moves
+        from the ears' depth (:func:`~trustnav.perception.confidence.head_yaw`) to the face mesh's
+        yaw as the face is seen better: weight w = size x agreement, size ramping from
+        ``FaceConfig.face_px_min`` to :data:`FACE_YAW_MIN_PX` (w = 1 from there: the mesh's yaw;
+        BlazePose's ears often read the body's orientation, -80 deg where the mesh reads -30 deg) and
+        agreement that of the shifted fits of a small face (:class:`~trustnav.perception.face.FaceResult`).
+        The two angles are mixed on the circle; a face whose reading flips with its crop keeps the body's."""
         lm = person.extra.get("blazepose")
-        if lm is None or face.face_px < FACE_YAW_MIN_PX or not math.isfinite(face.yaw):
+        if lm is None or not math.isfinite(face.yaw):
             return person
+        lo = self.face.config.face_px_min
+        size = min(max((face.face_px - lo) / max(FACE_YAW_MIN_PX - lo, 1e-9), 0.0), 1.0)
+        w = size * min(max(face.agreement, 0.0), 1.0)
+        if w <= 0.0:
+            return person
+        lm = np.asarray(lm, dtype=float)
+        mesh = math.radians(face.yaw)
+        if w < 1.0:
+            ears = head_yaw(lm)
+            mesh = math.atan2(
+                (1 - w) * math.sin(ears) + w * math.sin(mesh), (1 - w) * math.cos(ears) + w * math.cos(mesh)
+            )
         conf = np.array(person.confidences, dtype=float)
-        vis = np.clip(np.asarray(lm)[list(BLAZEPOSE_TO_COCO[:5]), 3], 0.0, 1.0)
-        conf[:5] = face_confidences(vis, math.radians(face.yaw))
+        vis = np.clip(lm[list(BLAZEPOSE_TO_COCO[:5]), 3], 0.0, 1.0)
+        conf[:5] = face_confidences(vis, mesh)
         return replace(person, confidences=conf)
 
 

@@ -161,6 +161,7 @@ class FaceResult:
     face_px: float = 0.0
     seconds: float = 0.0
     sharpness: float = math.nan  # variance of the Laplacian of the face box (frame pixels, grey 0-255)
+    agreement: float = 1.0  # of the shifted fits of a small face: 1 - 2 sd(p_face); 1 for one fit
 
 
 # --- geometry -------------------------------------------------------------------------------
@@ -423,7 +424,15 @@ class FaceEyeContact:
             return float(np.median([getattr(f, name) for f in good]))
 
         return FaceResult(
-            float(p.mean()), conf, med("yaw"), med("pitch"), med("gaze_yaw"), med("face_px"), 0.0, med("sharpness")
+            float(p.mean()),
+            conf,
+            med("yaw"),
+            med("pitch"),
+            med("gaze_yaw"),
+            med("face_px"),
+            0.0,
+            med("sharpness"),
+            agree * len(good) / len(fits),
         )
 
     def _fit(self, frame: NDArray[np.uint8], cx: float, cy: float, side: float) -> FaceResult | None:
