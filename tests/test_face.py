@@ -230,3 +230,34 @@ def test_shift_fits_are_validated():
     with pytest.raises(ValueError, match="shift_below_px"):
         FaceConfig(shift_below_px=-1.0)
     assert FaceConfig(shift_fits=1).shift_fits == 1
+
+
+def test_looking_face_confidences_move_from_the_ears_to_the_mesh_with_the_face_size(looking_model):
+    from trustnav.perception.confidence import face_confidences, head_yaw
+    from trustnav.perception.cues import FACE_YAW_MIN_PX, FaceEyeContactCue
+    from trustnav.perception.face import FaceResult
+
+    # BlazePose's ears read the body turned -80 deg; the face mesh reads the face turned -10 deg
+    lm = np.zeros((33, 5))
+    lm[:, 3:] = 1.0
+    lm[7, 0], lm[8, 0] = 100.0 + 2.0 * math.cos(math.radians(-80)), 100.0
+    lm[7, 2], lm[8, 2] = 2.0 * math.sin(math.radians(-80)) / 0.5, 0.0
+    assert math.degrees(head_yaw(lm)) == pytest.approx(-80.0)
+    kp = np.column_stack([np.linspace(100, 120, 17), np.linspace(100, 260, 17)])
+    person = Person(np.array([90.0, 90.0, 130.0, 270.0]), kp, np.full(17, 0.9), 0.9, extra={"blazepose": lm})
+    cue = FaceEyeContactCue(looking_model)
+    ears = face_confidences(np.ones(5), math.radians(-80))
+    mesh = face_confidences(np.ones(5), math.radians(-10))
+
+    def nose(face_px: float, agreement: float = 1.0) -> float:
+        face = FaceResult(0.9, 0.5, -10.0, 0.0, -10.0, face_px, 0.0, 100.0, agreement)
+        return float(cue._face_yawed(person, face).confidences[0])
+
+    lo = cue.face.config.face_px_min
+    assert nose(lo) == 0.9 and nose(0.0) == 0.9  # too small a face: BlazePose's own confidences
+    assert nose(FACE_YAW_MIN_PX) == pytest.approx(mesh[0]) == pytest.approx(nose(40.0))
+    sizes = np.linspace(lo, FACE_YAW_MIN_PX, 7)[1:]
+    noses = [nose(s) for s in sizes]
+    assert ears[0] < noses[0] and all(a < b for a, b in itertools.pairwise(noses))  # no switch: a ramp
+    # a small face whose shifted fits disagree keeps the body's reading
+    assert nose(14.0, agreement=0.0) == 0.9 and nose(14.0, 0.5) < nose(14.0, 1.0)
