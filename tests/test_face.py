@@ -261,3 +261,28 @@ def test_looking_face_confidences_move_from_the_ears_to_the_mesh_with_the_face_s
     assert ears[0] < noses[0] and all(a < b for a, b in itertools.pairwise(noses))  # no switch: a ramp
     # a small face whose shifted fits disagree keeps the body's reading
     assert nose(14.0, agreement=0.0) == 0.9 and nose(14.0, 0.5) < nose(14.0, 1.0)
+
+
+@pytest.mark.parametrize(("flags", "fits"), [((), 5), (("--realtime",), 1), (("--face",), 5)])
+def test_estimate_fits_small_faces_on_shifted_crops_offline_only(
+    sequences, looking_weights, tmp_path, monkeypatch, flags, fits
+):
+    import trustnav.perception.estimate as est
+    from trustnav.cli import main
+    from trustnav.perception.face import OFFLINE_SHIFT_FITS
+
+    seen = {}
+
+    class Captured(Exception):
+        pass
+
+    def capture(*args, face=None, face_config=None, **kwargs):
+        seen["config"] = face.config if face is not None else face_config
+        raise Captured  # the face configuration is all this test needs
+
+    monkeypatch.setattr(est, "estimate_sequences", capture)
+    frame = sorted((sequences / "walk_a").iterdir())[0]
+    args = [str(frame), "--no-images", "--looking-weights", str(looking_weights), "--out", str(tmp_path / "o")]
+    with pytest.raises(Captured):
+        main(["estimate", *args, *flags])
+    assert OFFLINE_SHIFT_FITS == 5 and seen["config"].shift_fits == fits  # real time has no time for them

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+from dataclasses import replace
 
 from trustnav.cli.common import check_bounds, span
 from trustnav.outputs import OutputFolder, no_interrupts
@@ -97,7 +98,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from trustnav.perception.detector import resolve_model
     from trustnav.perception.estimate import estimate_sequences
-    from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact
+    from trustnav.perception.face import FACE_FIELDS, OFFLINE_SHIFT_FITS, FaceConfig, FaceEyeContact
     from trustnav.perception.frames import frame_count, plan_sequences
     from trustnav.perception.live import LiveSource, is_live_source
     from trustnav.perception.localisation import FixedCameraGround
@@ -137,8 +138,11 @@ def run(args: argparse.Namespace) -> int:
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
     face = None
+    # offline, a small face is fitted on a few shifted crops (FaceConfig.shift_fits); real time, once
+    face_config = FaceConfig(shift_fits=OFFLINE_SHIFT_FITS if args.perception == "offline" else 1)
     if args.face:  # eye contact from the face too, fused with LOOKING (graphs loaded once, shared)
-        face = FaceEyeContact(FaceConfig(fov_deg=70.0 if args.fov is None else args.fov))
+        face_config = replace(face_config, fov_deg=70.0 if args.fov is None else args.fov)
+        face = FaceEyeContact(face_config)
     folder = OutputFolder(args.out, args.overwrite, ESTIMATE_OUTPUTS)
     earlier = folder.has_earlier_outputs()
     live_source = None
@@ -156,9 +160,10 @@ def run(args: argparse.Namespace) -> int:
         is_live = sequences[0].kind == "live"
         total = None if is_live else frame_count([f for s in sequences for f in s.files])
         bar = Progress(total and min(total, args.max_frames or total), "estimate", "frame")
-        frames = estimate_sequences(sequences, backend, eye, face=face, trust=TRUST_LAWS[args.trust], fps=args.fps,
-                                    ground=ground, max_frames=args.max_frames, max_seconds=args.max_seconds,
-                                    live=live_source, max_gap=args.open_timeout,
+        frames = estimate_sequences(sequences, backend, eye, face=face, face_config=face_config,
+                                    trust=TRUST_LAWS[args.trust], fps=args.fps, ground=ground,
+                                    max_frames=args.max_frames, max_seconds=args.max_seconds, live=live_source,
+                                    max_gap=args.open_timeout,
                                     on_stream_end=lambda msg: bar.write(f"trustnav: {msg}; stopping"))  # fmt: skip
         read = skipped = 0
         completed = interrupted = False  # completed: every sequence read to its end (the bar shows 100 %)

@@ -49,6 +49,7 @@ def estimate_sequences(
     eye: Any = None,
     *,
     face: Any = None,
+    face_config: Any = None,
     trust: TrustParams = SECONDS_TRUST,
     fps: float = 10.0,
     ground: Any = None,
@@ -66,7 +67,9 @@ def estimate_sequences(
     backend : pose backend (``reset()``, ``last_rejections`` and ``close()`` used when it has them;
         the caller closes it).
     eye : eye-contact model (LOOKING, the default cues); ``face``: a
-        :class:`~trustnav.perception.face.FaceEyeContact` fused with it (shared by the sequences).
+        :class:`~trustnav.perception.face.FaceEyeContact` fused with it (shared by the sequences);
+        without it, ``face_config`` (a :class:`~trustnav.perception.face.FaceConfig`) configures the
+        default cues' face analysis (offline ``trustnav estimate``: the shifted fits of small faces).
     trust : the trust law (``lin_comb``, ``agg_trust``); a fresh estimator per sequence.
     fps : rate of image sequences (videos: their own; live: the source's, else this).
     ground : a :class:`~trustnav.perception.localisation.FixedCameraGround`: each record gets its
@@ -87,8 +90,12 @@ def estimate_sequences(
         if hasattr(backend, "reset"):
             backend.reset()  # nothing followed from the previous sequence
         tracker = PersonTracker(fps=rate)
-        if face is None:
+        if face is None and face_config is None:
             pipeline = PerceptionPipeline(backend, tracker, eye)
+        elif face is None:
+            from trustnav.perception.cues import default_cues
+
+            pipeline = PerceptionPipeline(backend, tracker, cues=default_cues(eye, face=face_config))
         else:  # eye contact from the face too, fused with LOOKING
             from trustnav.perception.cues import default_cues, with_face
 
