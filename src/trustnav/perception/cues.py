@@ -133,7 +133,8 @@ class FaceEyeContactCue(EyeContactCue):
         return replace(person, confidences=conf)
 
 
-#: The face height (px) from which the face mesh's yaw sets LOOKING's face-keypoint confidences.
+#: The face height (px) from which the face mesh's yaw alone sets LOOKING's face-keypoint confidences
+#: (below it, mixed with the ears' yaw by size and agreement: :meth:`FaceEyeContactCue._face_yawed`).
 FACE_YAW_MIN_PX = 20.0
 
 

@@ -22,10 +22,11 @@ detector (``FaceDetectionShortRangeCpu``) and the face mesh with attention (``Fa
 - **Face confidence** c_face = score * size * sharpness * complete: detector score; size ramps
   linearly from 0 at ``face_px_min`` to 1 at ``face_px_full`` (face box height in frame pixels);
   sharpness = v / (v + blur_ref) with v the variance of the Laplacian on the face crop; complete =
-  fraction of the mesh inside the frame. A large person (expected face, height / 8, more than half
-  way up the size ramp) with visible head keypoints on
-  whom no face is found reads p_face = 0 with c_face = ``no_face_confidence`` * size (seen from the
-  back or turned away).
+  fraction of the mesh inside the frame; with ``shift_fits`` > 1 a face under ``shift_below_px`` is
+  fitted on crops moved by 1 px and its c_face also x the fits' agreement. A large person (expected
+  face, height / 8, more than half way up the size ramp) with visible head keypoints on whom no face
+  is found reads p_face = 0 with c_face = ``no_face_confidence`` * size (seen from the back or turned
+  away).
 
 **Fusion** (:func:`fuse_eye_contact`): C_eye = (1 - a) p_looking + a p_face, a = max_face_weight *
 c_face. It is monotone in both probabilities, equals LOOKING where the face is not resolved (small
