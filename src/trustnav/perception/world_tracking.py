@@ -200,6 +200,24 @@ def _mix(t: WorldTrack, dt: float, cfg: WorldTrackerConfig):
     return means, covs, c
 
 
+def _started(t: WorldTrack, dt: float, cfg: WorldTrackerConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The walking model's mean and covariance ``dt`` seconds on if the person, standing at the
+    track's last update, started walking just after it: the standing model's position, a velocity
+    of walking speed's prior (``initial_speed_sigma`` in each axis, as a new track's), carried by the
+    walking model. The IMM's own standing-to-walking transition carries the standing model's
+    velocity (0, certain), so one camera period of walking from rest lies outside the gate of a
+    track long seen standing (issue 34: at 1 frame/s a step-out of 1.3 m split a person into a
+    standing track and a new one without velocity)."""
+    mean = t.means[0].copy()
+    mean[2:] = 0.0
+    cov = t.covariances[0].copy()
+    cov[2:, :] = 0.0
+    cov[:, 2:] = 0.0
+    cov[2:, 2:] = cfg.initial_speed_sigma**2 * np.eye(2)
+    f, q = _models(dt, cfg)[1]
+    return f @ mean, f @ cov @ f.T + q
+
+
 _H = np.hstack([np.eye(2), np.zeros((2, 2))])
 
 
@@ -255,8 +273,10 @@ class WorldTracker:
             raise ValueError(f"time must be finite and not go back (last {self.time}), got {time!r}")
         cfg = self.config
         self.time = float(time)
-        for t in self.tracks:
+        started: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        for a, t in enumerate(self.tracks):
             if time > t.time:
+                started[a] = _started(t, time - t.time, cfg)
                 t.means, t.covariances, t.probabilities = _mix(t, time - t.time, cfg)
                 t.time = float(time)
         idx = [i for i, e in enumerate(estimates) if e is not None]
@@ -268,6 +288,7 @@ class WorldTracker:
 
             cost = np.full((n_t, n_d), np.inf)
             dist2 = np.full((n_t, n_d), np.inf)
+            moved = np.zeros((n_t, n_d), dtype=bool)
             for a, t in enumerate(self.tracks):
                 s_pos = t.covariance[:2, :2]
                 recent = t.box is not None and time - t.last_seen <= cfg.overlap_seconds
@@ -282,6 +303,19 @@ class WorldTracker:
                     # one bad placement (the heavy tail of monocular range) must not split a person in
                     # two: a confirmed track may take an estimate up to 5 gates away, a box that
                     # overlaps the track's box of a moment ago up to 10 (at a higher cost)
+                    if m2 > cfg.gate and a in started:
+                        # outside the mixture's gate: she may have started walking since the last
+                        # frame (one camera period of walking from standing moves her further than
+                        # the mixture, dominated by standing, allows); ranked after every ordinary
+                        # association
+                        m0, p0 = started[a]
+                        r = e.position - m0[:2]
+                        m2s = float(r @ np.linalg.solve(p0[:2, :2] + e.covariance, r))
+                        if m2s <= cfg.gate:
+                            dist2[a, b] = m2
+                            cost[a, b] = cfg.gate + m2s
+                            moved[a, b] = True
+                            continue
                     loose = (t.confirmed and m2 <= 5.0 * cfg.gate) or (iou >= 0.5 and m2 <= 10.0 * cfg.gate)
                     if m2 > cfg.gate and not loose:
                         continue
@@ -296,7 +330,9 @@ class WorldTracker:
                 e = estimates[i]
                 assert e is not None
                 t = self.tracks[a]
-                if dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
+                if moved[a, b]:  # she started walking: the walking model from her standing place
+                    t.means[1], t.covariances[1] = started[a]
+                elif dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
                 alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, cfg.error_shared)
                 if alike > 1.0:  # a frame soon after the last: its error is mostly that frame's again
