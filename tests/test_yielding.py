@@ -3,6 +3,8 @@ pedestrian it cannot pass on the road, passes crossers only behind, and drives o
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -115,6 +117,29 @@ def test_a_crosser_the_car_waits_for_is_remembered_when_her_track_vanishes():
     y.reset()
     assert _decide((4.0, 0.5), (0.0, -0.6)) is not None
     assert Y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0), **ROAD) is None
+
+
+def test_a_remembered_crosser_blocks_on_the_line_a_turned_car_heads_along():
+    """Issue 34 (run 65): a car stopped turned toward where she walks drives that way first; she is
+    waited for until she is R from the lane's line *and* from the line the car heads along."""
+    none = np.zeros((0, 2))
+
+    def walk(heading):
+        y = Yielder(YieldConfig())
+
+        def step(t, peds, vels):
+            return y.decide(np.zeros(2), 0.0, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 3.5),
+                            time=t, safety_radius=2.5, heading=heading, **ROAD)  # fmt: skip
+
+        assert step(0.0, np.array([[6.0, 0.5]]), np.array([[0.0, -0.6]])) is not None
+        return [step(t, none, none) is not None for t in (5.5, 7.0)]
+
+    # heading along the lane: she is R (2.5 m) from its line after 5 s
+    assert walk(0.0) == [False, False]
+    # turned 25 deg to the right, toward where she walks: at 5.5 s she is 2.8 m right of the lane's
+    # line but on the car's heading line, 6 m ahead; at 7 s 0.8 m from it, still within R
+    assert walk(math.radians(-25.0)) == [True, True]
+    assert walk(math.radians(25.0)) == [False, False]  # turned away from her
 
 
 def test_uncertainty_widens_who_blocks():
