@@ -101,12 +101,10 @@ def test_a_crosser_the_car_waits_for_is_remembered_when_her_track_vanishes():
     assert step(0.0, *crossing) is not None
     held = step(0.5, none, none)  # gone from the inputs: still waited for
     assert held is not None and held.pedestrian == -1 and "no longer sees" in held.note and held.speed_cap < 2.0
-    # at 0.6 m/s she is her radius when last seen (R and her margin, 3.5 m) from the lane's line
-    # (0.5 - 0.6 t <= -3.5) after 6.67 s; her centre is R from it after 5 s
-    assert step(5.1, none, none) is not None
-    assert step(6.6, none, none) is not None
-    assert step(6.75, none, none) is None
-    assert step(6.8, none, none) is None  # forgotten
+    # at 0.6 m/s she is R from the lane's line (0.5 - 0.6 t <= -2.5) after 5 s
+    assert step(4.9, none, none) is not None
+    assert step(5.1, none, none) is None
+    assert step(5.2, none, none) is None  # forgotten
     # seen again (within rematch of her prediction): judged from the inputs as usual
     assert step(10.0, *crossing) is not None
     again = step(10.5, np.array([[4.0, 0.3]]), np.array([[0.0, -0.6]]))
@@ -123,7 +121,7 @@ def test_a_crosser_the_car_waits_for_is_remembered_when_her_track_vanishes():
 
 def test_a_remembered_crosser_blocks_on_the_line_a_turned_car_heads_along():
     """Issue 34 (run 65): a car stopped turned toward where she walks drives that way first; she is
-    waited for until she is her radius from the lane's line *and* from the line the car heads along."""
+    waited for until she is R from the lane's line *and* from the line the car heads along."""
     none = np.zeros((0, 2))
 
     def walk(heading):
@@ -134,12 +132,12 @@ def test_a_remembered_crosser_blocks_on_the_line_a_turned_car_heads_along():
                             time=t, safety_radius=2.5, heading=heading, **ROAD)  # fmt: skip
 
         assert step(0.0, np.array([[6.0, 0.5]]), np.array([[0.0, -0.6]])) is not None
-        return [step(t, none, none) is not None for t in (7.0, 7.9)]
+        return [step(t, none, none) is not None for t in (5.5, 7.0)]
 
-    # heading along the lane: she is her radius (3.5 m) from its line after 6.67 s
+    # heading along the lane: she is R (2.5 m) from its line after 5 s
     assert walk(0.0) == [False, False]
-    # turned 25 deg to the right, toward where she walks: at 7 s she is 3.7 m right of the lane's
-    # line but 0.8 m from the car's heading line, 6 m ahead; at 7.9 s 1.3 m
+    # turned 25 deg to the right, toward where she walks: at 5.5 s she is 2.8 m right of the lane's
+    # line but on the car's heading line, 6 m ahead; at 7 s 0.8 m from it, still within R
     assert walk(math.radians(-25.0)) == [True, True]
     assert walk(math.radians(25.0)) == [False, False]  # turned away from her
 

@@ -34,12 +34,10 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   controller does with caution on). A pedestrian the car yields to who then vanishes from its
   inputs (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she
   crosses in front of the stopped car, cut off by the image's edge) is kept, predicted at her last
-  velocity, and blocks while that prediction is ahead of the car and within her radius when last
-  seen (R and her uncertainty's margin: a track dropped for its uncertainty leaves her anywhere in
-  that region) of the lane's line or of the line the car heads along (the MPC, not knowing her,
-  would drive the one, and a car stopped turned toward where she walks drives the other first),
-  for at most ``memory`` s. A dropped track says that the camera no longer sees her, not that she
-  has left the car's way.
+  velocity, and blocks while that prediction is ahead of the car and within R of the lane's line
+  or of the line the car heads along (the MPC, not knowing her, would drive the one, and a car
+  stopped turned toward where she walks drives the other first), for at most ``memory`` s. A dropped track says
+  that the camera no longer sees her, not that she has left the car's way.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -101,7 +99,7 @@ class Yielder:
 
     def __init__(self, config: YieldConfig) -> None:
         self.config = config
-        self._memory: tuple[NDArray[np.float64], NDArray[np.float64], float, float] | None = None
+        self._memory: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None
 
     def reset(self) -> None:
         self._memory = None
@@ -144,11 +142,9 @@ class Yielder:
         # the line the car heads along (a car stopped turned toward where she walks drives it first)
         ahead = axis if heading is None else np.array([math.cos(heading), math.sin(heading)])
         if remember and self._memory is not None:  # she vanished from the inputs? keep her prediction
-            pos, vel, t0, last_radius = self._memory
+            pos, vel, t0 = self._memory
             pred = pos + vel * (float(time) - t0)
-            # her radius when last seen (R and her uncertainty's margin): a track dropped for its
-            # uncertainty leaves her anywhere in that region, not at its centre
-            near = max(float(safety_radius), last_radius)
+            near = float(safety_radius)
             off_lane = abs(float((pred - road_start) @ road_normal) - d_lane) >= near
             rel = pred - position
             off_heading = abs(float(ahead[0] * rel[1] - ahead[1] * rel[0])) >= near
@@ -177,8 +173,7 @@ class Yielder:
             np.ascontiguousarray(ahead, dtype=float),
         )  # fmt: skip
         if remember and 0 <= j < n_real:
-            self._memory = (np.array(pedestrians[j], dtype=float), np.array(velocities[j], dtype=float), float(time),
-                            float(radii[j]))  # fmt: skip
+            self._memory = (np.array(pedestrians[j], dtype=float), np.array(velocities[j], dtype=float), float(time))
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None
