@@ -275,8 +275,9 @@ class WorldTracker:
         self.time = float(time)
         started: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         for a, t in enumerate(self.tracks):
-            if time > t.time:
+            if time > t.time and t.probabilities[0] >= 0.5:  # seen standing: she may have started walking
                 started[a] = _started(t, time - t.time, cfg)
+            if time > t.time:
                 t.means, t.covariances, t.probabilities = _mix(t, time - t.time, cfg)
                 t.time = float(time)
         idx = [i for i, e in enumerate(estimates) if e is not None]
@@ -306,14 +307,15 @@ class WorldTracker:
                     if m2 > cfg.gate and a in started:
                         # outside the mixture's gate: she may have started walking since the last
                         # frame (one camera period of walking from standing moves her further than
-                        # the mixture, dominated by standing, allows); ranked after every ordinary
-                        # association
+                        # the mixture, dominated by standing, allows); ranked after every other
+                        # association, loose ones included (a walker's estimate that strays from
+                        # her own track must not make a bystander's track walk off with her)
                         m0, p0 = started[a]
                         r = e.position - m0[:2]
                         m2s = float(r @ np.linalg.solve(p0[:2, :2] + e.covariance, r))
                         if m2s <= cfg.gate:
                             dist2[a, b] = m2
-                            cost[a, b] = cfg.gate + m2s
+                            cost[a, b] = 10.0 * cfg.gate + m2s
                             moved[a, b] = True
                             continue
                     loose = (t.confirmed and m2 <= 5.0 * cfg.gate) or (iou >= 0.5 and m2 <= 10.0 * cfg.gate)
