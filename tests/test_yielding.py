@@ -142,6 +142,23 @@ def test_a_remembered_crosser_blocks_on_the_line_a_turned_car_heads_along():
     assert walk(math.radians(25.0)) == [False, False]  # turned away from her
 
 
+def test_a_remembered_crosser_moves_across_the_road_only():
+    """Issue 34 (10 frames/s, seed 0 run 49): her dropped track's velocity along the road was the
+    monocular range's drift (0.41 m/s); remembered with it, her prediction and the car's stop moved
+    ahead of a creeping car while she crossed in front of it (0.89 m). Remembered, she crosses."""
+    y = Yielder(YieldConfig())
+    none = np.zeros((0, 2))
+
+    def step(t, peds, vels):
+        return y.decide(np.zeros(2), 0.5, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 2.5),
+                        time=t, safety_radius=2.5, **ROAD)  # fmt: skip
+
+    assert step(0.0, np.array([[8.0, 1.5]]), np.array([[0.8, -0.6]])) is not None  # drifting ahead at 0.8 m/s
+    first, later = step(0.5, none, none), step(3.0, none, none)
+    assert first is not None and later is not None and later.pedestrian == -1
+    assert later.stop[0] == pytest.approx(first.stop[0], abs=1e-6)  # the stop stays where she crosses
+
+
 def test_uncertainty_widens_who_blocks():
     assert _decide((30.0, -1.0), (0.0, 0.0)) is None
     assert _decide((30.0, -1.0), (0.0, 0.0), radii=np.array([3.5])) is not None

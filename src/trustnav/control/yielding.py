@@ -31,13 +31,14 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   at the estimated velocity, as the MPC predicts: the bound never makes someone standing at the
   kerb a crosser.
 - **Whom it waits for is remembered** (given the step's ``time`` and ``safety_radius``, as the
-  controller does with caution on). A pedestrian the car yields to who then vanishes from its
-  inputs (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she
-  crosses in front of the stopped car, cut off by the image's edge) is kept, predicted at her last
-  velocity, and blocks while that prediction is ahead of the car and within R of the lane's line
-  or of the line the car heads along (the MPC, not knowing her, would drive the one, and a car
-  stopped turned toward where she walks drives the other first), for at most ``memory`` s. A dropped track says
-  that the camera no longer sees her, not that she has left the car's way.
+  controller does with caution on). A pedestrian the car yields to who then vanishes from its inputs
+  (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she crosses
+  in front of the stopped car, cut off by the image's edge) is kept, predicted at her last velocity
+  across the road (along it, a frame's estimate is mostly the monocular range's drift), and blocks
+  while that prediction is ahead of the car and within R of the lane's line or of the line the car
+  heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
+  she walks drives the other first), for at most ``memory`` s. A dropped track says that the camera
+  no longer sees her, not that she has left the car's way.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -173,7 +174,11 @@ class Yielder:
             np.ascontiguousarray(ahead, dtype=float),
         )  # fmt: skip
         if remember and 0 <= j < n_real:
-            self._memory = (np.array(pedestrians[j], dtype=float), np.array(velocities[j], dtype=float), float(time))
+            # remembered as crossing: her velocity across the road only (along it, a frame's estimate
+            # is the monocular range's drift; kept, it moved her prediction, and the stop, ahead of a
+            # creeping car while she crossed in front of it)
+            across = float(np.asarray(velocities[j], dtype=float) @ road_normal) * np.asarray(road_normal, dtype=float)
+            self._memory = (np.array(pedestrians[j], dtype=float), across, float(time))
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None
