@@ -18,6 +18,9 @@ identity survives frames that are a second apart and people who leave the view f
   Monocular range has a heavy tail, so a confirmed track may also take an estimate up to 5 gates
   away (a box overlapping its recent box, IoU >= 0.5, up to 10), that estimate then believed only
   as far as the gate allows (its covariance scaled up): one bad placement does not split a person;
+  a track seen standing may also take an estimate outside the mixture's gate that lies inside the
+  gate of "she started walking just after the last frame" (:func:`_started`), ranked after every
+  other association: at 1 frame/s a step-out moves a person 1.3 m between frames;
 * **birth** of a tentative track from an estimate no track takes, **confirmation** after
   ``confirm_hits`` hits, **deletion** of a tentative track at its first miss; a confirmed track
   is deleted when it should have been seen and was not for ``keep_seconds`` (the whole body of a
@@ -55,7 +58,7 @@ class WorldTrackerConfig:
     slow down and turn); standing_psd: the standing model's random walk (m^2/s: a bystander's
     shuffle); switch_rate: how often a person starts or stops walking (1/s); initial_standing: the
     standing model's probability for a new track; initial_speed_sigma: the velocity prior of a
-    new track (m/s); gate: squared Mahalanobis
+    new track and of a standing track's "started walking" hypothesis (m/s); gate: squared Mahalanobis
     distance beyond which an estimate cannot join a track (chi^2_2 99.7 % = 11.6);
     overlap_bonus: subtracted from the cost per unit of box IoU when the track's last box is at
     most ``overlap_seconds`` old; confirm_hits: hits that confirm a track; keep_seconds: how long a
