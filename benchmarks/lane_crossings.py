@@ -5,7 +5,8 @@ starts on either sidewalk, 3.5-6 m from the road's line, 5-35 m ahead of the car
 0-3 s and crosses at 0.5-1.8 m/s, attentive or distracted; the car starts at 0-8 m/s; in half of
 the runs a second pedestrian stands on a kerb near the crossing. Keypoint sensing, perceived
 pedestrian states (the default drive). Prints the runs that left the road, came within R or did not
-reach the goal, and the medians of time to goal and time spent yielding. Of the runs within R it
+reach the goal, the medians of time to goal and time spent yielding, and the crosser's identity
+switches and the coverage of her track's 90 % region (:func:`tracking`). Of the runs within R it
 counts those that could have stopped R short of the crosser's path, braking at the vehicle's limit
 after one control step and the actuation latency, (a) from the moment she stepped out (as if the
 car knew at once) and (b) from the moment the camera could have shown it (:func:`shown_at`).
@@ -94,6 +95,28 @@ def shown_at(sc, r) -> float | None:  # type: ignore[no-untyped-def]
     return None
 
 
+#: chi^2 with 2 degrees of freedom, 90 %: the truth inside the 90 % region of a 2-D estimate.
+CHI2_90 = 4.605
+
+
+def tracking(r) -> tuple[int, int, int]:  # type: ignore[no-untyped-def]
+    """The crosser's identity switches (her world track changing between the frames that observed
+    her), the frames that observed her, and of those the frames whose track's 90 % region held her
+    true position."""
+    switches, seen, covered, last = 0, 0, 0, None
+    for f in r.frames:
+        v = f.views[0]
+        if not v.observed or v.track_id is None:
+            continue
+        seen += 1
+        switches += last is not None and v.track_id != last
+        last = v.track_id
+        if v.estimate is not None and v.estimate_cov is not None and v.position is not None:
+            d = np.asarray(v.position) - np.asarray(v.estimate)[:2]
+            covered += float(d @ np.linalg.solve(np.asarray(v.estimate_cov)[:2, :2], d)) <= CHI2_90
+    return switches, seen, covered
+
+
 def brake_room(sc, r) -> tuple[float, float | None]:  # type: ignore[no-untyped-def]
     """The braking room (:func:`_room_from`) (a) from the moment she stepped out (the car knew at
     once) and (b) from the moment the camera could have shown it (:func:`shown_at`; None: never)."""
@@ -130,6 +153,7 @@ def main() -> None:
         m = r.metrics()
         room_a, room_b = brake_room(sc, r)
         shown = shown_at(sc, r)
+        switches, seen, covered = tracking(r)
         rows.append({
             "run": k, "attentive": sc.pedestrians[0].attentive, "ego_speed": round(sc.ego_speed, 2),
             "reached_goal": m["reached_goal"], "time_to_goal": m["time_to_goal"],
@@ -139,6 +163,7 @@ def main() -> None:
             "brake_room_shown_m": None if room_b is None else round(room_b, 2),
             "steps_out_s": round(sc.pedestrians[0].behaviour.start_time, 2),
             "shown_s": None if shown is None else round(shown, 2), "crosser_speed": sc.pedestrians[0].behaviour.speed,
+            "id_switches": switches, "frames_observed": seen, "frames_covered": covered,
         })  # fmt: skip
     off = [r for r in rows if r["road_departure_max"] > 0]
     inside = [r for r in rows if r["margin_violations"] > 0]
@@ -157,6 +182,10 @@ def main() -> None:
     yielded = [r["yield_s"] for r in rows]
     print(f"  time to goal median {np.median(ttg):.1f} s, p90 {np.percentile(ttg, 90):.1f} s; yielded in "
           f"{sum(y > 0 for y in yielded)} runs, median {np.median(yielded):.1f} s")  # fmt: skip
+    seen = sum(r["frames_observed"] for r in rows)
+    print(f"  the crosser's track: {sum(r['id_switches'] for r in rows)} identity switches in "
+          f"{sum(r['id_switches'] > 0 for r in rows)} runs; her 90 % region held her in "
+          f"{sum(r['frames_covered'] for r in rows) / max(seen, 1):.3f} of {seen} frames observing her")  # fmt: skip
     for r in off + inside + stuck:
         print("  ", json.dumps(r))
     if args.json:

@@ -434,3 +434,28 @@ def test_estimate_places_people_on_the_ground_only_with_the_camera_height(tmp_pa
     assert "--camera-height" in capsys.readouterr().err and not (tmp_path / "c").exists()
     assert main(["estimate", str(clip), "--out", str(tmp_path / "d"), "--camera-height", "100"]) == 2
     assert "--camera-height must be in [0.2, 20] m, got 100" in capsys.readouterr().err
+
+
+def test_a_standing_track_follows_her_first_second_of_walking():
+    """Issue 34 (run 70): at 1 frame/s a person seen standing for seconds steps out and the next
+    frame shows her 1.3 m on, outside the standing mixture's gate. The track must follow her (the
+    walking model started from her place at walking speed's prior), not split into a standing track
+    and a new one without velocity; a standing person's ordinary noise must not make her a walker."""
+    walker, stander = WorldTracker(), WorldTracker()
+    for k in range(4):
+        walker.add_frame(float(k), [_estimate((0.0, 0.0), sigma=0.05)])
+        stander.add_frame(float(k), [_estimate((0.0, 0.0), sigma=0.05)])
+    before = walker.tracks[0]
+    assert before.probabilities[0] > 0.9  # seen standing
+    (tid,) = walker.add_frame(4.0, [_estimate((1.3, 0.0), sigma=0.05)])
+    assert tid == before.track_id and len(walker.tracks) == 1
+    (state,) = walker.predict(4.0)
+    assert state.velocity[0] > 0.9 and abs(state.velocity[1]) < 0.2  # walking toward +x
+    assert walker.tracks[0].probabilities[1] > 0.9
+    stander.add_frame(4.0, [_estimate((0.08, -0.05), sigma=0.05)])
+    assert stander.tracks[0].probabilities[0] > 0.5 and np.hypot(*stander.predict(4.0)[0].velocity) < 0.2
+    # far beyond a second of walking (4 m) stays another person
+    other = WorldTracker()
+    for k in range(4):
+        other.add_frame(float(k), [_estimate((0.0, 0.0), sigma=0.05)])
+    assert other.add_frame(4.0, [_estimate((4.0, 0.0), sigma=0.05)])[0] != 0

@@ -3,6 +3,8 @@ pedestrian it cannot pass on the road, passes crossers only behind, and drives o
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -115,6 +117,46 @@ def test_a_crosser_the_car_waits_for_is_remembered_when_her_track_vanishes():
     y.reset()
     assert _decide((4.0, 0.5), (0.0, -0.6)) is not None
     assert Y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0), **ROAD) is None
+
+
+def test_a_remembered_crosser_blocks_on_the_line_a_turned_car_heads_along():
+    """Issue 34 (run 65): a car stopped turned toward where she walks drives that way first; she is
+    waited for until she is R from the lane's line *and* from the line the car heads along."""
+    none = np.zeros((0, 2))
+
+    def walk(heading):
+        y = Yielder(YieldConfig())
+
+        def step(t, peds, vels):
+            return y.decide(np.zeros(2), 0.0, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 3.5),
+                            time=t, safety_radius=2.5, heading=heading, **ROAD)  # fmt: skip
+
+        assert step(0.0, np.array([[6.0, 0.5]]), np.array([[0.0, -0.6]])) is not None
+        return [step(t, none, none) is not None for t in (5.5, 7.0)]
+
+    # heading along the lane: she is R (2.5 m) from its line after 5 s
+    assert walk(0.0) == [False, False]
+    # turned 25 deg to the right, toward where she walks: at 5.5 s she is 2.8 m right of the lane's
+    # line but on the car's heading line, 6 m ahead; at 7 s 0.8 m from it, still within R
+    assert walk(math.radians(-25.0)) == [True, True]
+    assert walk(math.radians(25.0)) == [False, False]  # turned away from her
+
+
+def test_a_remembered_crosser_moves_across_the_road_only():
+    """Issue 34 (10 frames/s, seed 0 run 49): her dropped track's velocity along the road was the
+    monocular range's drift (0.41 m/s); remembered with it, her prediction and the car's stop moved
+    ahead of a creeping car while she crossed in front of it (0.89 m). Remembered, she crosses."""
+    y = Yielder(YieldConfig())
+    none = np.zeros((0, 2))
+
+    def step(t, peds, vels):
+        return y.decide(np.zeros(2), 0.5, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 2.5),
+                        time=t, safety_radius=2.5, **ROAD)  # fmt: skip
+
+    assert step(0.0, np.array([[8.0, 1.5]]), np.array([[0.8, -0.6]])) is not None  # drifting ahead at 0.8 m/s
+    first, later = step(0.5, none, none), step(3.0, none, none)
+    assert first is not None and later is not None and later.pedestrian == -1
+    assert later.stop[0] == pytest.approx(first.stop[0], abs=1e-6)  # the stop stays where she crosses
 
 
 def test_uncertainty_widens_who_blocks():

@@ -31,12 +31,14 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   at the estimated velocity, as the MPC predicts: the bound never makes someone standing at the
   kerb a crosser.
 - **Whom it waits for is remembered** (given the step's ``time`` and ``safety_radius``, as the
-  controller does with caution on). A pedestrian the car yields to who then vanishes from its
-  inputs (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she
-  crosses in front of the stopped car, cut off by the image's edge) is kept, predicted at her last
-  velocity, and blocks while that prediction is ahead of the car and within R of the lane's line
-  (the MPC, not knowing her, would drive that line), for at most ``memory`` s. A dropped track says
-  that the camera no longer sees her, not that she has left the car's way.
+  controller does with caution on). A pedestrian the car yields to who then vanishes from its inputs
+  (no pedestrian within ``rematch`` of where she was predicted: her track dropped while she crosses
+  in front of the stopped car, cut off by the image's edge) is kept, predicted at her last velocity
+  across the road (along it, a frame's estimate is mostly the monocular range's drift), and blocks
+  while that prediction is ahead of the car and within R of the lane's line or of the line the car
+  heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
+  she walks drives the other first), for at most ``memory`` s. A dropped track says that the camera
+  no longer sees her, not that she has left the car's way.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -119,6 +121,7 @@ class Yielder:
         z: float = 1.645,
         time: float | None = None,
         safety_radius: float | None = None,
+        heading: float | None = None,
     ) -> YieldDecision | None:
         """The stop for the nearest pedestrian the car must yield to, or None (drive on).
 
@@ -127,7 +130,9 @@ class Yielder:
         room (left, right) the car's centre has from it; pedestrians and velocities (N, 2); radii
         (N,) (R plus any uncertainty margin); ``covariances`` (N, 4, 4) of each estimated (x, y, v_x,
         v_y) (None: the velocities are taken as exact) and ``z`` the quantile of its velocity;
-        ``time`` (s) and ``safety_radius`` (R): remember whom the car waits for (None: stateless)."""
+        ``time`` (s) and ``safety_radius`` (R): remember whom the car waits for (None: stateless);
+        ``heading`` (rad) of the car: one it remembers also blocks within R of the line it heads
+        along (None: the lane's direction)."""
         c = self.config
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
@@ -135,12 +140,17 @@ class Yielder:
         n_real = len(pedestrians)
         remember = time is not None and safety_radius is not None
         d_lane = float((lane_start - road_start) @ road_normal)  # the lane's line, where the car drives
+        # the line the car heads along (a car stopped turned toward where she walks drives it first)
+        ahead = axis if heading is None else np.array([math.cos(heading), math.sin(heading)])
         if remember and self._memory is not None:  # she vanished from the inputs? keep her prediction
             pos, vel, t0 = self._memory
             pred = pos + vel * (float(time) - t0)
             near = float(safety_radius)
-            gone = (abs(float((pred - road_start) @ road_normal) - d_lane) >= near
-                    or float((pred - road_start) @ axis) <= s_car or float(time) - t0 > c.memory)  # fmt: skip
+            off_lane = abs(float((pred - road_start) @ road_normal) - d_lane) >= near
+            rel = pred - position
+            off_heading = abs(float(ahead[0] * rel[1] - ahead[1] * rel[0])) >= near
+            gone = ((off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
+                    or float(time) - t0 > c.memory)  # fmt: skip
             seen = n_real > 0 and float(np.min(np.hypot(*(np.asarray(pedestrians) - pred).T))) <= c.rematch
             if gone or seen:
                 self._memory = None
@@ -160,10 +170,15 @@ class Yielder:
             np.ascontiguousarray(radii, dtype=float), np.ascontiguousarray(road_start, dtype=float), axis,
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
-            max(float(speed), 0.1), cov, float(z), n_real, d_lane,
+            max(float(speed), 0.1), cov, float(z), n_real, d_lane, np.ascontiguousarray(position, dtype=float),
+            np.ascontiguousarray(ahead, dtype=float),
         )  # fmt: skip
         if remember and 0 <= j < n_real:
-            self._memory = (np.array(pedestrians[j], dtype=float), np.array(velocities[j], dtype=float), float(time))
+            # remembered as crossing: her velocity across the road only (along it, a frame's estimate
+            # is the monocular range's drift; kept, it moved her prediction, and the stop, ahead of a
+            # creeping car while she crossed in front of it)
+            across = float(np.asarray(velocities[j], dtype=float) @ road_normal) * np.asarray(road_normal, dtype=float)
+            self._memory = (np.array(pedestrians[j], dtype=float), across, float(time))
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None
@@ -190,7 +205,7 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, cov, z, n_real, d_lane):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
@@ -199,7 +214,7 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
     velocity and at it raised by z sigma (its component across the road, from ``cov`` (N, 4, 4);
     none where ``cov`` is empty) toward the road's line, is skipped. Pedestrians from ``n_real`` on
     are remembered, not seen: they block within their radius of the lane's line (``d_lane`` from the
-    road's line)."""
+    road's line) or of the line the car heads along (``ahead``, through ``car``)."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
@@ -239,7 +254,10 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 # one it no longer sees (j >= n_real) blocks within r of the lane's line: the MPC,
                 # not knowing her, would not steer round her
                 if j >= n_real:
-                    blocks = abs(d - d_lane) < r and sk > s_car
+                    off = abs(
+                        ahead[0] * (peds[j, 1] + vy * ts[k] - car[1]) - ahead[1] * (peds[j, 0] + vx * ts[k] - car[0])
+                    )
+                    blocks = (abs(d - d_lane) < r or off < r) and sk > s_car
                 else:
                     blocks = near and sk > s_car and not room_left and not room_right
                 if blocks:

@@ -18,6 +18,9 @@ identity survives frames that are a second apart and people who leave the view f
   Monocular range has a heavy tail, so a confirmed track may also take an estimate up to 5 gates
   away (a box overlapping its recent box, IoU >= 0.5, up to 10), that estimate then believed only
   as far as the gate allows (its covariance scaled up): one bad placement does not split a person;
+  a track seen standing may also take an estimate outside the mixture's gate that lies inside the
+  gate of "she started walking just after the last frame" (:func:`_started`), ranked after every
+  other association: at 1 frame/s a step-out moves a person 1.3 m between frames;
 * **birth** of a tentative track from an estimate no track takes, **confirmation** after
   ``confirm_hits`` hits, **deletion** of a tentative track at its first miss; a confirmed track
   is deleted when it should have been seen and was not for ``keep_seconds`` (the whole body of a
@@ -55,7 +58,7 @@ class WorldTrackerConfig:
     slow down and turn); standing_psd: the standing model's random walk (m^2/s: a bystander's
     shuffle); switch_rate: how often a person starts or stops walking (1/s); initial_standing: the
     standing model's probability for a new track; initial_speed_sigma: the velocity prior of a
-    new track (m/s); gate: squared Mahalanobis
+    new track and of a standing track's "started walking" hypothesis (m/s); gate: squared Mahalanobis
     distance beyond which an estimate cannot join a track (chi^2_2 99.7 % = 11.6);
     overlap_bonus: subtracted from the cost per unit of box IoU when the track's last box is at
     most ``overlap_seconds`` old; confirm_hits: hits that confirm a track; keep_seconds: how long a
@@ -200,6 +203,24 @@ def _mix(t: WorldTrack, dt: float, cfg: WorldTrackerConfig):
     return means, covs, c
 
 
+def _started(t: WorldTrack, dt: float, cfg: WorldTrackerConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The walking model's mean and covariance ``dt`` seconds on if the person, standing at the
+    track's last update, started walking just after it: the standing model's position, a velocity
+    of walking speed's prior (``initial_speed_sigma`` in each axis, as a new track's), carried by the
+    walking model. The IMM's own standing-to-walking transition carries the standing model's
+    velocity (0, certain), so one camera period of walking from rest lies outside the gate of a
+    track long seen standing (issue 34: at 1 frame/s a step-out of 1.3 m split a person into a
+    standing track and a new one without velocity)."""
+    mean = t.means[0].copy()
+    mean[2:] = 0.0
+    cov = t.covariances[0].copy()
+    cov[2:, :] = 0.0
+    cov[:, 2:] = 0.0
+    cov[2:, 2:] = cfg.initial_speed_sigma**2 * np.eye(2)
+    f, q = _models(dt, cfg)[1]
+    return f @ mean, f @ cov @ f.T + q
+
+
 _H = np.hstack([np.eye(2), np.zeros((2, 2))])
 
 
@@ -255,7 +276,10 @@ class WorldTracker:
             raise ValueError(f"time must be finite and not go back (last {self.time}), got {time!r}")
         cfg = self.config
         self.time = float(time)
-        for t in self.tracks:
+        started: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        for a, t in enumerate(self.tracks):
+            if time > t.time and t.probabilities[0] >= 0.5:  # seen standing: she may have started walking
+                started[a] = _started(t, time - t.time, cfg)
             if time > t.time:
                 t.means, t.covariances, t.probabilities = _mix(t, time - t.time, cfg)
                 t.time = float(time)
@@ -268,6 +292,7 @@ class WorldTracker:
 
             cost = np.full((n_t, n_d), np.inf)
             dist2 = np.full((n_t, n_d), np.inf)
+            moved = np.zeros((n_t, n_d), dtype=bool)
             for a, t in enumerate(self.tracks):
                 s_pos = t.covariance[:2, :2]
                 recent = t.box is not None and time - t.last_seen <= cfg.overlap_seconds
@@ -282,6 +307,20 @@ class WorldTracker:
                     # one bad placement (the heavy tail of monocular range) must not split a person in
                     # two: a confirmed track may take an estimate up to 5 gates away, a box that
                     # overlaps the track's box of a moment ago up to 10 (at a higher cost)
+                    if m2 > cfg.gate and a in started:
+                        # outside the mixture's gate: she may have started walking since the last
+                        # frame (one camera period of walking from standing moves her further than
+                        # the mixture, dominated by standing, allows); ranked after every other
+                        # association, loose ones included (a walker's estimate that strays from
+                        # her own track must not make a bystander's track walk off with her)
+                        m0, p0 = started[a]
+                        r = e.position - m0[:2]
+                        m2s = float(r @ np.linalg.solve(p0[:2, :2] + e.covariance, r))
+                        if m2s <= cfg.gate:
+                            dist2[a, b] = m2
+                            cost[a, b] = 10.0 * cfg.gate + m2s
+                            moved[a, b] = True
+                            continue
                     loose = (t.confirmed and m2 <= 5.0 * cfg.gate) or (iou >= 0.5 and m2 <= 10.0 * cfg.gate)
                     if m2 > cfg.gate and not loose:
                         continue
@@ -296,7 +335,9 @@ class WorldTracker:
                 e = estimates[i]
                 assert e is not None
                 t = self.tracks[a]
-                if dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
+                if moved[a, b]:  # she started walking: the walking model from her standing place
+                    t.means[1], t.covariances[1] = started[a]
+                elif dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
                 alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, cfg.error_shared)
                 if alike > 1.0:  # a frame soon after the last: its error is mostly that frame's again
