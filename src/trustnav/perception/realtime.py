@@ -63,8 +63,10 @@ class RealtimeConfig:
     at most for followed people (new boxes are always fitted); carry_frames: frames a followed person
     the detector does not box is carried by its velocity; search_frames: None (default) detects on
     every frame, an integer k on one frame in k (the others carry every person by its velocity);
-    min_height_px: boxes shorter than this are not fitted (a far crowd's 30-40 px people cost a landmark
-    fit each, and the landmark model rarely confirms them); a box the landmark model did not confirm
+    min_height_px: boxes shorter than this are not fitted (a far crowd's 30-60 px people cost a landmark
+    fit each, and the landmark model rarely confirms them): 60 px keeps a 15 frames/s stream inside the
+    2-core budget (docs/perception.md, "Real time (issue 35)"); a slower camera can afford less (the
+    drive's in-step mode, one frame a second, sets 40 px); a box the landmark model did not confirm
     is not tried again for 2 x ``landmark_every`` frames where it stays; pipelined: the fits of a frame
     run beside the next frame's detection and are reported there (module docstring); detector_input:
     the detector's input's longer side (a multiple of 32; None: the model's 416)."""
@@ -73,7 +75,7 @@ class RealtimeConfig:
     max_fits: int = 3
     carry_frames: int = 4
     search_frames: int | None = None
-    min_height_px: float = 40.0
+    min_height_px: float = 60.0
     pipelined: bool = True
     detector_input: int | None = None
 
