@@ -369,9 +369,10 @@ def make_render_pipeline(
 
         k = None if search_seconds is None else modelled_search_frames(fps, search_seconds)
         # the drive's camera (1 frame/s by default, every frame processed in step) has the budget to fit
-        # people down to 40 px (Case I's distracted pedestrian is first seen at 28 m, under 60 px); a
-        # 15 frames/s stream's default is 60 px
-        backend: Any = RealtimePoseBackend(realtime=RealtimeConfig(search_frames=k, min_height_px=40.0))
+        # people down to 40 px (Case I's distracted pedestrian is first seen at 28 m, under 60 px) and to
+        # refit them every 3rd frame; a 15 frames/s stream's defaults are 60 px and every 4th frame
+        cfg = RealtimeConfig(search_frames=k, min_height_px=40.0, landmark_every=3)
+        backend: Any = RealtimePoseBackend(realtime=cfg)
     else:
         backend = MediaPipePoseBackend(video=fps >= 5.0)
     return PerceptionPipeline(backend, PersonTracker(fps=fps), looking_model())
