@@ -232,18 +232,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         t1 = time.perf_counter()
         if detect:
             self._detect_s.append(t1 - t0)
-        matched, new = _associate([f.box for f in self._people], boxes)
-        for i, j in matched.items():
-            f = self._people[i]
-            centre = _centre(boxes[j]) - _centre(f.box) + f.velocity
-            f.velocity = 0.5 * f.velocity + 0.5 * _capped(centre, boxes[j])
-            f.box, f.seen_at = boxes[j].astype(np.float64), index
-        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < 2 * cfg.landmark_every]
-        new = [
-            j for j in new
-            if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
-            and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
-        ]  # fmt: skip
+        new = self._match_boxes(boxes, index)
         # new boxes, the largest (nearest) first, in what is left of the frame's fits (at least one)
         new.sort(key=lambda j: boxes[j][1] - boxes[j][3])
         new = new[: max(1, cfg.max_fits - len(due)) if cfg.max_fits else 0]
@@ -284,6 +273,24 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         self._frame_index += 1
         return [f.person for f in self._people]
 
+    def _match_boxes(self, boxes: NDArray[np.float64], index: int) -> list[int]:
+        """The frame's detector ``boxes`` met with the followed people (a matched person takes its box,
+        its velocity smoothed); returns the new boxes worth a fit: tall enough (``min_height_px``) and not
+        refused by the landmark model in the last 2 x ``landmark_every`` frames."""
+        cfg = self.realtime
+        matched, new = _associate([f.box for f in self._people], boxes)
+        for i, j in matched.items():
+            f = self._people[i]
+            centre = _centre(boxes[j]) - _centre(f.box) + f.velocity
+            f.velocity = 0.5 * f.velocity + 0.5 * _capped(centre, boxes[j])
+            f.box, f.seen_at = boxes[j].astype(np.float64), index
+        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < 2 * cfg.landmark_every]
+        return [
+            j for j in new
+            if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
+            and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
+        ]  # fmt: skip
+
     def _pipelined(self, frame: NDArray[np.uint8]) -> list[Person]:
         """``RealtimeConfig.pipelined``: the landmark fits chosen on frame k run on the two workers while the
         caller judges frame k and this thread detects frame k + 1; they are taken in on frame k + 1, the
@@ -303,18 +310,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
         rejected: list[Rejection] = []
         self._people += self._take_batch(index, w, h, rejected)  # the fits of the frame before
         t2 = time.perf_counter()
-        matched, new = _associate([f.box for f in self._people], boxes)
-        for i, j in matched.items():
-            f = self._people[i]
-            centre = _centre(boxes[j]) - _centre(f.box) + f.velocity
-            f.velocity = 0.5 * f.velocity + 0.5 * _capped(centre, boxes[j])
-            f.box, f.seen_at = boxes[j].astype(np.float64), index
-        self._unconfirmed = [(k, b) for k, b in self._unconfirmed if index - k < 2 * cfg.landmark_every]
-        new = [
-            j for j in new
-            if boxes[j][3] - boxes[j][1] >= cfg.min_height_px
-            and not any(box_iou(boxes[j], b) >= 0.5 for _, b in self._unconfirmed)
-        ]  # fmt: skip
+        new = self._match_boxes(boxes, index)
         self._people = [f for f in self._people if index - f.seen_at <= cfg.carry_frames]
         # this frame's fits: the most overdue followed people, then new boxes, the largest first, in what
         # is left of max_fits (at least one)
