@@ -9,7 +9,7 @@ import sys
 
 from trustnav.schema import Integer, Invalid, Number
 
-__all__ = ["BOUNDS", "Parser", "check_bounds", "one_line", "span"]
+__all__ = ["BOUNDS", "Parser", "add_attention", "check_bounds", "one_line", "span"]
 
 #: option -> its rule (trustnav.schema): the documented range of every number an option takes. Rates
 #: and the CARLA timeout are bounded so that no run takes hours.
@@ -38,6 +38,15 @@ BOUNDS: dict[str, Number | Integer] = {
     "search_seconds": Number(0, 10, lo_open=True, unit=" s"),
     "perception_latency": Number(0, 5, unit=" s"),  # sim.driving.world.MAX_PERCEPTION_LATENCY (lazy imports)
 }
+
+
+def add_attention(parser: argparse.ArgumentParser) -> None:
+    """``--attentive`` / ``--distracted``: every pedestrian of the scenario one way (dest ``attentive``)."""
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
+                   help="every pedestrian attentive")  # fmt: skip
+    g.add_argument("--distracted", dest="attentive", action="store_const", const=False,
+                   help="every pedestrian distracted")  # fmt: skip
 
 
 def span(dest: str) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from trustnav.cli.common import span
+from trustnav.cli.common import add_attention, span
 from trustnav.cli.drive import drive_scenario, scenario_options
 from trustnav.outputs import OutputFolder
 from trustnav.viz.report import comparison_table
@@ -22,11 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="keypoints: projected joints (default, fast); render: frames + perception")  # fmt: skip
     q.add_argument("--state", choices=["perceived", "true"], default="perceived",
                    help="the controller's pedestrians: perceived (default) or true (the world's)")  # fmt: skip
-    gq = q.add_mutually_exclusive_group()
-    gq.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
-                    help="every pedestrian attentive")  # fmt: skip
-    gq.add_argument("--distracted", dest="attentive", action="store_const", const=False,
-                    help="every pedestrian distracted")  # fmt: skip
+    add_attention(q)
     q.add_argument("--seed", type=int, default=0, help=f"seed of sensing noise, {span('seed')} (default 0)")
     q.add_argument("--rate", type=float, help=f"camera rate, {span('rate')} (default: scenario)")
     q.add_argument("--control-rate", type=float, help=f"controller rate, {span('control_rate')} (default: scenario)")

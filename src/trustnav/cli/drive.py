@@ -8,7 +8,7 @@ import functools
 import sys
 from pathlib import Path
 
-from trustnav.cli.common import check_bounds, span
+from trustnav.cli.common import add_attention, check_bounds, span
 from trustnav.outputs import OutputFolder
 from trustnav.viz.report import drive_summary
 
@@ -40,11 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "run in step with the frames and its findings handed over as if it took S seconds, "
                    f"{span('search_seconds')} (the 2-core machine takes ~0.5; default: the search on its own "
                    "thread, as fast as the machine allows)")  # fmt: skip
-    g = d.add_mutually_exclusive_group()
-    g.add_argument("--attentive", dest="attentive", action="store_const", const=True, default=None,
-                   help="every pedestrian attentive")  # fmt: skip
-    g.add_argument("--distracted", dest="attentive", action="store_const", const=False,
-                   help="every pedestrian distracted")  # fmt: skip
+    add_attention(d)
     d.add_argument("--seed", type=int, default=0, help=f"seed of sensing noise, {span('seed')} (default 0)")
     d.add_argument("--rate", type=float, help="camera rate = trust-estimation rate, "
                    f"{span('rate')} (default: scenario, 1)")  # fmt: skip
