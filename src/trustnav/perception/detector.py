@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -78,17 +77,13 @@ def resolve_model(path: str | Path | None = None, *, download: bool = True) -> P
             )
         return p
     candidates, cache = _candidates()
-    for c in candidates:
-        if c.is_file():
-            return c
-    if not download:
-        raise FileNotFoundError(
-            f"person detector {MODEL_NAME} not found (looked in {candidates[0]}, ..., {cache}); {MODEL_HINT}, "
-            f"or allow the download from {YOLOX_URL}"
-        )
-    print(f"trustnav: downloading the person detector YOLOX-Nano (3.6 MB) once to {cache}", file=sys.stderr)
-    model_files.download(YOLOX_URL, cache, what=f"person detector {MODEL_NAME}", hint=MODEL_HINT, sha256=YOLOX_SHA256)
-    return cache
+    return model_files.find_or_download(
+        candidates, cache, allow=download, url=YOLOX_URL, hint=MODEL_HINT, sha256=YOLOX_SHA256,
+        missing=f"person detector {MODEL_NAME} not found (looked in {candidates[0]}, ..., {cache}); {MODEL_HINT}, "
+        f"or allow the download from {YOLOX_URL}",
+        notice=f"trustnav: downloading the person detector YOLOX-Nano (3.6 MB) once to {cache}",
+        what=f"person detector {MODEL_NAME}",
+    )  # fmt: skip
 
 
 def _load_onnxruntime() -> Any:

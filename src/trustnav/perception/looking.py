@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import pickle
-import sys
 import zipfile
 from collections import OrderedDict
 from pathlib import Path
@@ -106,17 +105,13 @@ def resolve_weights(path: str | Path | None = None, *, download: bool = True) ->
             raise FileNotFoundError(f"LOOKING weights not found at {p} ({what}; expected the file {WEIGHTS_NAME})")
         return p
     candidates, cache = _candidates()
-    for c in candidates:
-        if c.is_file():
-            return c
-    if not download:
-        raise FileNotFoundError(
-            f"LOOKING weights not found (looked in {', '.join(str(c) for c in candidates[:2])}, ..., {cache}); "
-            f"{WEIGHTS_HINT}, or allow the download from {LOOKING_URL}"
-        )
-    print(f"trustnav: downloading the LOOKING eye-contact weights (1.7 MB) once to {cache}", file=sys.stderr)
-    model_files.download(LOOKING_URL, cache, what="LOOKING eye-contact weights", hint=WEIGHTS_HINT, timeout=30.0)
-    return cache
+    return model_files.find_or_download(
+        candidates, cache, allow=download, url=LOOKING_URL, hint=WEIGHTS_HINT, timeout=30.0,
+        missing=f"LOOKING weights not found (looked in {', '.join(str(c) for c in candidates[:2])}, ..., {cache}); "
+        f"{WEIGHTS_HINT}, or allow the download from {LOOKING_URL}",
+        notice=f"trustnav: downloading the LOOKING eye-contact weights (1.7 MB) once to {cache}",
+        what="LOOKING eye-contact weights",
+    )  # fmt: skip
 
 
 def normalise_keypoints(keypoints: ArrayLike, confidences: ArrayLike, image_width: float) -> NDArray[np.float64]:

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import urllib.request
 from pathlib import Path
 
-__all__ = ["cache_path", "checkout_paths", "download"]
+__all__ = ["cache_path", "checkout_paths", "download", "find_or_download"]
 
 
 def checkout_paths(folder: str, name: str) -> list[Path]:
@@ -21,6 +22,31 @@ def checkout_paths(folder: str, name: str) -> list[Path]:
 def cache_path(name: str) -> Path:
     """The user cache's copy of a model file: ``$XDG_CACHE_HOME/trustnav/<name>`` (~/.cache)."""
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "trustnav" / name
+
+
+def find_or_download(
+    candidates: list[Path],
+    cache: Path,
+    *,
+    allow: bool,
+    missing: str,
+    notice: str,
+    url: str,
+    what: str,
+    hint: str,
+    sha256: str | None = None,
+    timeout: float = 60.0,
+) -> Path:
+    """The first of ``candidates`` that is a file; else, with ``allow``, ``url`` fetched once into
+    ``cache`` (``notice`` on stderr first); else FileNotFoundError(``missing``)."""
+    for c in candidates:
+        if c.is_file():
+            return c
+    if not allow:
+        raise FileNotFoundError(missing)
+    print(notice, file=sys.stderr)
+    download(url, cache, what=what, hint=hint, sha256=sha256, timeout=timeout)
+    return cache
 
 
 def download(url: str, dest: Path, *, what: str, hint: str, sha256: str | None = None, timeout: float = 60.0) -> None:
