@@ -350,7 +350,10 @@ def realtime_config(spec: str) -> tuple[str, dict]:
                 f"--config: expected 'default' or FIELD=INT,... of {sorted(fields)}, got {item!r}"
             )
         out[key] = bool(int(value)) if key == "pipelined" else int(value)
-    RealtimeConfig(**out)  # validated now
+    try:
+        RealtimeConfig(**out)  # validated now
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--config {spec!r}: {exc}") from None
     return spec, out
 
 

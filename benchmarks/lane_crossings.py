@@ -138,6 +138,14 @@ def main() -> None:
     ap.add_argument("--json", help="write every run's summary to this file")
     args = ap.parse_args()
     base = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
+    sets: dict[str, float] = {}
+    for kv in args.set:  # checked once, before any drive: a bad option is one line naming it
+        key, eq, value = kv.partition("=")
+        try:
+            sets[key] = float(value) if eq else float("nan")
+            dataclasses.replace(base.control, **sets)
+        except (TypeError, ValueError) as exc:  # SchemaError is a ValueError
+            ap.error(f"--set {kv!r}: {exc} (expected [control] OPTION=NUMBER)")
     rng = np.random.default_rng(args.seed)
     rows = []
     for k in range(args.runs):
@@ -146,8 +154,7 @@ def main() -> None:
             continue
         if args.caution is not None:
             sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=args.caution == "on"))
-        if args.set:
-            sets = {k: float(v) for k, v in (kv.split("=") for kv in args.set)}
+        if sets:
             sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, **sets))
         r = run_drive(sc, sensing="keypoints", seed=k, state=args.state, capture_rate=args.rate)
         m = r.metrics()
