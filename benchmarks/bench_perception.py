@@ -23,8 +23,8 @@ frame finding nobody), ``false_boxes`` and ``duplicates`` there (the labelled ev
 >= 80 px to the real-time run's, over people followed >= 0.5 s; one never found counts to the end),
 ``recall_vs_offline``, ``traits_hz_median`` (median over tracks followed >= 1 s of the rate at which
 the track's traits were judged afresh, not carried) and ``load`` (1-minute load average during the
-run). ``--baseline`` adds the offline row of the proposers before issue 35 (BlazePose's tiles, the
-segmentation and HOG searches) in the same run, so speeds compare as ratios; ``--repeat N`` streams
+run). ``--baseline`` adds the offline row of the proposer before issue 35 (BlazePose's tiles) in the
+same run, so speeds compare as ratios; ``--repeat N`` streams
 N times; ``--config SPEC ...`` streams several real-time settings in turn (``default`` or
 RealtimeConfig fields, ``max_fits=2,pipelined=0``: a row each, ``config`` naming it).
 ``recall_every_frame``, ``first_detection_every_frame_s`` and ``traits_hz_every_frame`` are the same
@@ -63,19 +63,16 @@ def run(
     scan_frames: int,
     workers: int,
     model: LookingModel,
-    body: bool = True,
     proposer: str = "detector",
 ) -> dict:
     frames = [f.frame for f in iter_frames(paths) if f.frame is not None]
-    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, body_search=body, proposer=proposer)
+    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, proposer=proposer)
     backend = MediaPipePoseBackend(config, video=video)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=10.0), model)
     pipeline(frames[0])  # warm-up (graph start-up), then start again
     backend.reset()
     pipeline.tracker = PersonTracker(fps=10.0)
-    stages: dict[str, list[float]] = {
-        k: [] for k in ("detection", "landmarks", "segmentation", "body", "traits", "tracking")
-    }
+    stages: dict[str, list[float]] = {k: [] for k in ("detection", "landmarks", "traits", "tracking")}
     totals, people = [], []
     for frame in frames:
         t0 = time.perf_counter()
@@ -92,7 +89,6 @@ def run(
         "size": f"{w}x{h}",
         "mode": "video" if video else "still",
         "scan_frames": scan_frames,
-        "body_search": body,
         "frames": len(frames),
         "people_per_frame": float(np.mean(people)),
         **{f"{k}_ms": 1e3 * float(np.median(v)) for k, v in stages.items()},
@@ -120,7 +116,6 @@ def run_reference(
     frames: list,
     fps: float,
     model: LookingModel,
-    body: bool = True,
     proposer: str = "detector",
     realtime: bool = False,
     config: dict | None = None,
@@ -133,7 +128,7 @@ def run_reference(
 
         backend: MediaPipePoseBackend = RealtimePoseBackend(realtime=RealtimeConfig(**(config or {})))
     else:
-        backend = MediaPipePoseBackend(MediaPipeConfig(body_search=body, proposer=proposer), video=True)
+        backend = MediaPipePoseBackend(MediaPipeConfig(proposer=proposer), video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     pipeline(frames[0])  # warm-up, then start again
     backend.reset()
@@ -208,10 +203,6 @@ def compare(
 #: Box height (px) from which a person counts as clearly visible (``recall_clear``): the size from
 #: which the labelled evaluation (trust_eval.py) counts people and both proposers work.
 CLEAR_PX = 80.0
-
-
-#: --body-search: the MediaPipeConfig.body_search settings measured.
-BODY_SEARCH = {"on": [True], "off": [False], "both": [False, True]}
 
 
 def labelled_scores(per_frame: list[list[dict] | None], names: list[str]) -> dict:
@@ -294,14 +285,14 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     fps = args.stream_fps
     rows = []
     load0 = os.getloadavg()[0]
-    reference, ref_fps = run_reference(walk, fps, model, True)
+    reference, ref_fps = run_reference(walk, fps, model)
     load = round((load0 + os.getloadavg()[0]) / 2, 2)
     rows.append({"name": "walk_a", "mode": "offline", "proposer": "detector", "fps": ref_fps,
                  **labelled_scores(reference, names), "traits_hz_median": traits_hz(reference, fps),
                  "load": load})  # fmt: skip
     if args.baseline:  # the proposers before issue 35, in the same run: speeds as ratios
         load0 = os.getloadavg()[0]
-        base, base_fps = run_reference(walk, fps, model, True, proposer="blazepose")
+        base, base_fps = run_reference(walk, fps, model, proposer="blazepose")
         rows.append({"name": "walk_a", "mode": "offline", "proposer": "blazepose", "fps": base_fps,
                      **labelled_scores(base, names), "traits_hz_median": traits_hz(base, fps),
                      "load": round((load0 + os.getloadavg()[0]) / 2, 2)})  # fmt: skip
@@ -362,20 +353,18 @@ def main() -> None:
     ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
     ap.add_argument("--stream-fps", type=float, default=15.0, help="--realtime: the stream's frame rate")
     ap.add_argument("--baseline", action="store_true",
-                    help="--realtime: also the offline row with the proposers before issue 35 (BlazePose tiles, "
-                    "segmentation, HOG), in the same run")  # fmt: skip
+                    help="--realtime: also the offline row with the proposer before issue 35 (BlazePose's "
+                    "tiles), in the same run")  # fmt: skip
     ap.add_argument("--repeat", type=int, default=1, help="--realtime: streamed runs (the spread of the timings)")
     ap.add_argument("--config", nargs="+", type=realtime_config, default=[realtime_config("default")],
                     metavar="SPEC", help="--realtime: the real-time backends streamed, in turn, each 'default' "
                     "or RealtimeConfig fields as 'max_fits=2,pipelined=0' (ratios in one run)")  # fmt: skip
     ap.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
-                    help="who proposes people (MediaPipeConfig.proposer); --scan-frames and --body-search "
-                    "apply to blazepose only")  # fmt: skip
+                    help="who proposes people (MediaPipeConfig.proposer); --scan-frames applies to blazepose "
+                    "only")  # fmt: skip
     ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
-    ap.add_argument("--body-search", choices=tuple(BODY_SEARCH), default="on",
-                    help="the HOG body-shape search (MediaPipeConfig.body_search): on, off or both")  # fmt: skip
     ap.add_argument("--json", help="write the rows to this file")
     args = ap.parse_args()
     if not 1 <= args.repeat <= 10:
@@ -387,24 +376,18 @@ def main() -> None:
         realtime_main(args, model)
         return
     rows = []
-    if args.proposer == "detector":  # the scan and body-search settings belong to the tiled search
-        settings = [(1, True)]
-    else:
-        settings = list(itertools.product(args.scan_frames, BODY_SEARCH[args.body_search]))
-    for scan, body in settings:
+    scans = [1] if args.proposer == "detector" else args.scan_frames  # the scan belongs to the tiled search
+    for scan in scans:
         for seq in ("walk_a", "phone_a"):
             paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))
-            rows.append(run(seq, paths, True, scan, args.workers, model, body, args.proposer))
+            rows.append(run(seq, paths, True, scan, args.workers, model, args.proposer))
     if not args.skip_street:
         streets = sorted((SHARED / "data" / "street_images").glob("street_*.png"))
-        stills = [True] if args.proposer == "detector" else BODY_SEARCH[args.body_search]
-        for body in stills:
-            rows.append(run("street_*.png", streets, False, 1, args.workers, model, body, args.proposer))
-            crossing = [SHARED / "data" / "street_images" / "crossing.jpg"] * 3
-            rows.append(run("crossing.jpg", crossing, False, 1, args.workers, model, body, args.proposer))
-    cols = ["input", "proposer", "size", "mode", "scan_frames", "body_search", "frames", "people_per_frame",
-            "detection_ms",
-            "landmarks_ms", "segmentation_ms", "body_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
+        rows.append(run("street_*.png", streets, False, 1, args.workers, model, args.proposer))
+        crossing = [SHARED / "data" / "street_images" / "crossing.jpg"] * 3
+        rows.append(run("crossing.jpg", crossing, False, 1, args.workers, model, args.proposer))
+    cols = ["input", "proposer", "size", "mode", "scan_frames", "frames", "people_per_frame", "detection_ms",
+            "landmarks_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

@@ -460,6 +460,22 @@ def test_numbers_out_of_range_are_one_line_naming_the_option(tmp_path, scripted,
     assert not out.exists() and not _partials(tmp_path)  # refused before anything was written
 
 
+def test_the_retired_body_search_option_is_one_line_saying_so(tmp_path, capsys):
+    """Issue 35 retired the HOG body-shape search: ``--no-body-search`` is refused by name with the
+    reason, not ignored, before anything is written, and it is not in --help."""
+    img, out = _image(tmp_path / "a.png"), tmp_path / "o"
+    with pytest.raises(SystemExit) as exit_:
+        main(["estimate", str(img), "--out", str(out), "--no-body-search"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    _one_clean_line(err)
+    assert err.startswith("trustnav estimate: error: --no-body-search was removed: the HOG body-shape search")
+    assert "issue 35" in err and not out.exists()
+    with pytest.raises(SystemExit):
+        main(["estimate", "--help"])
+    assert "--no-body-search" not in capsys.readouterr().out
+
+
 def test_every_number_option_documents_its_range(capsys):
     from trustnav.cli import BOUNDS, build_parser
 

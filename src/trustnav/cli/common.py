@@ -9,7 +9,7 @@ import sys
 
 from trustnav.schema import Integer, Invalid, Number
 
-__all__ = ["BOUNDS", "Parser", "add_attention", "check_bounds", "one_line", "span"]
+__all__ = ["BOUNDS", "Parser", "add_attention", "add_removed", "check_bounds", "one_line", "span"]
 
 #: option -> its rule (trustnav.schema): the documented range of every number an option takes. Rates
 #: and the CARLA timeout are bounded so that no run takes hours.
@@ -47,6 +47,19 @@ def add_attention(parser: argparse.ArgumentParser) -> None:
                    help="every pedestrian attentive")  # fmt: skip
     g.add_argument("--distracted", dest="attentive", action="store_const", const=False,
                    help="every pedestrian distracted")  # fmt: skip
+
+
+def add_removed(parser: argparse.ArgumentParser, removed: dict[str, str]) -> None:
+    """Options that were removed, hidden from ``--help``: each given is one parser error line naming it
+    and saying why and what replaced it (``removed``: option -> that reason, as a phrase)."""
+
+    class Removed(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):  # type: ignore[no-untyped-def]
+            option = self.option_strings[0]
+            parser.error(f"{option} was removed: {removed[option]}")
+
+    for option in removed:
+        parser.add_argument(option, nargs="?", action=Removed, help=argparse.SUPPRESS)
 
 
 def span(dest: str) -> str:

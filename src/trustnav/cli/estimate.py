@@ -9,10 +9,15 @@ import contextlib
 import sys
 from dataclasses import replace
 
-from trustnav.cli.common import check_bounds, span
+from trustnav.cli.common import add_removed, check_bounds, span
 from trustnav.outputs import OutputFolder, no_interrupts
 
 ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json", "rejected.json")
+#: Options that were removed, and why (a one-line error if given).
+REMOVED_OPTIONS = {
+    "--no-body-search": "the HOG body-shape search it skipped was retired in issue 35 (the YOLOX-Nano person "
+    "detector, the default, finds the people it found on the labelled sets)",
+}
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "landmarks refitted a few times a second and carried between (docs/perception.md)")  # fmt: skip
     e.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
                    help="mediapipe: who proposes people: the YOLOX-Nano person detector (default) or, as before, "
-                   "BlazePose's face detector over tiles with the segmentation and HOG searches")  # fmt: skip
+                   "BlazePose's pose detector over tiles")  # fmt: skip
     e.add_argument("--detector-model", metavar="FILE",
                    help="the YOLOX-Nano ONNX file (default: ../shared/models/yolox/ of a checkout, "
                    "$TRUSTNAV_YOLOX_MODEL, the user cache, else downloaded once; a FILE given is never "
@@ -58,9 +63,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"mediapipe: unsharp mask for the person search, {span('sharpen')} (default 0, off); 0.7 finds "
         "more people on soft or compressed video (MP4 at ~36 dB)",
     )
-    e.add_argument("--no-body-search", action="store_true",
-                   help="mediapipe: skip the HOG body-shape search for the people the pose detector misses (seen "
-                   "from behind, on compressed video); faster, finds fewer (docs/perception.md)")  # fmt: skip
     e.add_argument("--max-frames", type=int, help=f"stop after N frames, {span('max_frames')} (any input)")
     e.add_argument("--max-seconds", type=float,
                    help=f"live input: stop after S seconds, {span('max_seconds')} (default: when the stream ends "
@@ -92,6 +94,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "with --camera-height)")  # fmt: skip
     e.add_argument("--mp4", action="store_true",
                    help="image inputs too: an annotated MP4 per sequence instead of PNG frames")  # fmt: skip
+    add_removed(e, REMOVED_OPTIONS)
     e.set_defaults(func=run)
 
 
@@ -128,9 +131,9 @@ def run(args: argparse.Namespace) -> int:
         args.perception = "realtime" if live and mediapipe else "offline"
     if args.perception == "realtime" and (args.backend != "mediapipe" or args.proposer != "detector"):
         raise ValueError("--realtime runs on the mediapipe backend with the detector as proposer")
-    legacy = args.sharpen or args.scan_frames != 1 or args.no_body_search
+    legacy = args.sharpen or args.scan_frames != 1
     if legacy and (args.backend != "mediapipe" or args.proposer != "blazepose"):
-        raise ValueError("--sharpen, --scan-frames and --no-body-search apply to --proposer blazepose (mediapipe) only")
+        raise ValueError("--sharpen and --scan-frames apply to --proposer blazepose (mediapipe) only")
     if args.backend == "mediapipe" and args.proposer == "detector":
         args.detector_model = str(resolve_model(args.detector_model))  # a missing file: refused here
     elif args.detector_model is not None:
@@ -150,8 +153,8 @@ def run(args: argparse.Namespace) -> int:
         live_source = LiveSource(sequences[0].source, open_timeout=args.open_timeout, read_timeout=args.open_timeout)
     # written beside --out, moved into place at the end (removed if the run fails); the live source closed in any case
     with folder, contextlib.closing(live_source) if live_source is not None else contextlib.nullcontext():
-        mediapipe = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search,
-                     "proposer": args.proposer, "detector_model": args.detector_model}  # fmt: skip
+        mediapipe = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "proposer": args.proposer,
+                     "detector_model": args.detector_model}  # fmt: skip
         backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime",
                                **(mediapipe if args.backend == "mediapipe" else {}))  # fmt: skip
         extra = (() if face is None else FACE_FIELDS) + (() if ground is None else ground.FIELDS)

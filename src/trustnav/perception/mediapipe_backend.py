@@ -3,8 +3,8 @@
 Since issue 35 people are proposed by the learned person detector (``MediaPipeConfig.proposer =
 "detector"``, :mod:`~trustnav.perception.detector`): each box is fitted by the landmark model below,
 which confirms it and gives its keypoints, then one box per person and the geometry gate
-(:mod:`~trustnav.perception.ground_gate`; rejections in ``last_rejections``). The proposers before it,
-described next, are ``proposer="blazepose"``.
+(:mod:`~trustnav.perception.ground_gate`; rejections in ``last_rejections``). The proposer before it,
+described next, is ``proposer="blazepose"`` (its segmentation and HOG searches were retired in issue 35).
 
 MediaPipe's legacy Pose solution follows one person. Here its two stages run as separate graphs
 built from the calculators that ship in the wheel (no model download, no jax):
@@ -39,21 +39,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from trustnav.perception.body_search import (
-    MIN_PERSON_SHARE,
-    BodyDetector,
-    consistent,
-    person_share,
-    segment_square,
-    window_region,
-)
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
 from trustnav.perception.detector import PersonDetector
 from trustnav.perception.frames import quiet_stderr
 from trustnav.perception.ground_gate import GateConfig, HorizonFit, Rejection, gate_boxes
-from trustnav.perception.segment_search import MIN_HEIGHT_PX as SEGMENT_MIN_HEIGHT_PX
-from trustnav.perception.segment_search import MIN_PRESENCE as SEGMENT_MIN_PRESENCE
-from trustnav.perception.segment_search import blob_regions, plausible, segment_windows
 from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = [
@@ -160,7 +149,7 @@ def load_mediapipe() -> Any:
 
 
 #: Who proposes people: the learned detector (YOLOX-Nano, :mod:`~trustnav.perception.detector`) or,
-#: as before issue 35, BlazePose's face detector over tiles with the segmentation and HOG searches.
+#: as before issue 35, BlazePose's pose detector over tiles.
 PROPOSERS = ("detector", "blazepose")
 
 
@@ -191,19 +180,12 @@ class MediaPipeConfig:
     default because the detector's regions then change the landmarks, and LOOKING's eye contact
     with them: on the street images it no longer ranks the people facing the camera above those in
     profile (``benchmarks/trust_eval.py``, docs/perception.md).
-    segment_search: also look for the people the detector misses (seen in profile, from behind,
-    small) through person segmentation (:mod:`trustnav.perception.segment_search`): square tiles of
-    ``segment_tile`` x the shorter side; in video mode the tiles are shared out over
-    ``segment_frames`` consecutive frames (a person found is followed from its landmarks after).
     proposer: who proposes people: "detector" (default, issue 35: YOLOX-Nano,
     :mod:`~trustnav.perception.detector`, from ``detector_model`` or the default places, boxes scored
     >= ``detector_min_score``; each box fitted on a square of ``region_scale`` x its larger side, then
     the geometry gate, ``geometry_gate``, :mod:`~trustnav.perception.ground_gate`) or "blazepose" (the
-    tiles, segmentation and HOG searches below, before issue 35; the tile, scan, sharpen, segment and
-    body settings apply to it only).
-    body_search: also look for them by the shape of their body, with OpenCV's HOG people detector
-    (:mod:`trustnav.perception.body_search`; it survives video compression, which the detector's
-    face cue does not); in video mode on one frame in ``body_frames`` (or in ``scan_frames``, if more).
+    tiles above, before issue 35; the tile, scan and sharpen settings apply to it only; it is kept
+    for the people whose landmark fit needs BlazePose's own alignment region, docs/perception.md).
     """
 
     tile_fractions: tuple[float, ...] = (1.0, 0.5, 0.33)
@@ -221,11 +203,6 @@ class MediaPipeConfig:
     box_pad: tuple[float, float, float, float] = (0.03, 0.07, 0.03, 0.02)
     sharpen: float = 0.0
     sharpen_sigma: float = 2.0
-    segment_search: bool = True
-    segment_tile: float = 0.33
-    segment_frames: int = 4
-    body_search: bool = True
-    body_frames: int = 2
     proposer: str = "detector"
     detector_model: str | None = None
     detector_min_score: float = 0.25
@@ -243,18 +220,6 @@ class MediaPipeConfig:
             )
         if not isinstance(self.geometry_gate, bool):
             raise ValueError(f"geometry_gate must be True or False, got {self.geometry_gate!r}")
-        for name in ("segment_search", "body_search"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        if not 0.1 <= self.segment_tile <= 1.0:
-            raise ValueError(f"segment_tile must be in [0.1, 1] (of the shorter side), got {self.segment_tile!r}")
-        for name in ("segment_frames", "body_frames"):
-            if (
-                isinstance(getattr(self, name), bool)
-                or not isinstance(getattr(self, name), int)
-                or getattr(self, name) < 1
-            ):
-                raise ValueError(f"{name} must be an integer >= 1, got {getattr(self, name)!r}")
         if len(self.box_pad) != 4 or any(not 0.0 <= v <= 0.5 for v in self.box_pad):
             raise ValueError(f"box_pad must be 4 margins (left, top, right, bottom) in [0, 0.5], got {self.box_pad!r}")
         if self.head_band is not None and not 0.0 <= self.head_band[0] < self.head_band[1] <= 1.0:
@@ -323,7 +288,7 @@ RETRY_MAX_IOU = 0.2
 #: feet as a share of its side). Through video compression the landmark model's person flag flips
 #: with the region's placement by a few pixels (walk_a through MP4: a 77 px man fitted on a region
 #: 0.1 of its side higher and 1.1 x larger, or 1.25 x larger, not on the one centred on him), and the
-#: followed person was lost until the detector or the body search found them again. A person fitted
+#: followed person was lost until the detector found them again. A person fitted
 #: on one of them is marked ``refollowed``: it gives way to the detector's people and does not stop a
 #: detection from being fitted (on a fast walker the tried region can still hold where she was).
 FOLLOW_TRIES = ((1.1, -0.1), (1.25, 0.0))
@@ -341,9 +306,6 @@ REDETECT_MAX_SHIFT = 0.25
 MIN_FIT_IOU = 0.3
 #: A confirmed person's score before the body's presence: this + the rest x the detection score.
 CONFIRMED_FLOOR = 0.5
-
-#: The detection score given to a person found from segmentation (no detector score exists).
-SEGMENT_SCORE = 0.5
 
 #: A landmark check: (33 landmarks, region used) -> the Person, or None if rejected.
 Accept = Callable[[NDArray[np.float64], NDArray[np.float64]], "Person | None"]
@@ -382,26 +344,6 @@ class _Graphs:
             blank = np.zeros((64, 64, 3), dtype=np.uint8)
             self.detector.process({"image": blank})  # start the graphs now, quietly
             self.landmarker.process({"image": blank, "roi": self.rect(x_center=0.5, y_center=0.5, width=1, height=1)})
-        self.segmenter: Any = None  # person segmentation, started on first use
-        self.body: BodyDetector | None = None  # HOG people detector, made on first use
-
-    def bodies(self, frame: NDArray[np.uint8]) -> list[NDArray[np.float64]]:
-        """Windows [x0, y0, x1, y1] that the HOG people detector takes for a person (:mod:`body_search`)."""
-        if self.body is None:
-            self.body = BodyDetector()
-        return self.body(frame)
-
-    def segment(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> NDArray[np.float32]:
-        """Person-pixel probabilities of one window of the frame (MediaPipe's selfie segmentation)."""
-        if self.segmenter is None:
-            import mediapipe
-
-            with quiet_stderr(), quiet_environment(), protobuf_warning_ignored():
-                self.segmenter = mediapipe.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0)
-                # its TFLite model logs a warning (inference_feedback_manager) on the first frame: start it here
-                self.segmenter.process(np.zeros((64, 64, 3), dtype=np.uint8))
-        x0, y0, x1, y1 = window
-        return self.segmenter.process(np.ascontiguousarray(frame[y0:y1, x0:x1])).segmentation_mask
 
     def detect(self, frame: NDArray[np.uint8], window: tuple[int, int, int, int]) -> list[tuple[NDArray, float]]:
         """Person regions found in one window of the frame, in frame pixels."""
@@ -532,8 +474,6 @@ class _Graphs:
     def close(self) -> None:
         self.detector.close()
         self.landmarker.close()
-        if self.segmenter is not None:
-            self.segmenter.close()
 
 
 class MediaPipePoseBackend:
@@ -636,31 +576,24 @@ class MediaPipePoseBackend:
             k = self._frame_index % self.config.scan_frames
             windows = [windows[0]] + windows[1:][k :: self.config.scan_frames]
         followed = self._followed if self.video else []
-        busy = {"detection": 0.0, "landmarks": 0.0, "body": 0.0}
+        busy = {"detection": 0.0, "landmarks": 0.0}
 
         def task(g: _Graphs, job: tuple[str, Any, float]) -> tuple[Any, float]:
             t = time.perf_counter()
             kind, arg, score = job
             if kind == "detection":
                 out = g.detect(search, arg)
-            elif kind == "body":
-                out = g.bodies(frame)
             else:
                 out = g.landmarks_or_redetect(frame, arg, lambda lm, roi: self._person(lm, score, w, h, roi))
             return out, time.perf_counter() - t
 
         # stage 1: tiles through the detector, and the followed people through the landmark model
-        every = max(self.config.body_frames, self.config.scan_frames)  # shared over frames as the tiles are
-        body = self.config.body_search and (not self.video or self._frame_index % every == 0)
-        # the body search first: its one long job runs on one worker while the others take the tiles
-        jobs = [("body", None, 0.0)] if body else []
-        jobs += [("detection", win, 0.0) for win in windows]
+        jobs = [("detection", win, 0.0) for win in windows]
         jobs += [("landmarks", roi[None, :], score) for roi, score in followed]
         done = self._map(task, jobs)
         for (kind, _, _), (_, dt) in zip(jobs, done, strict=True):
             busy[kind] += dt
-        bodies = done[0][0] if body else []
-        found = [region for out, _ in done[int(body) : int(body) + len(windows)] for region in out]
+        found = [region for out, _ in done[: len(windows)] for region in out]
         results = [out for out, _ in done[len(jobs) - len(followed) :]]
         scores = [score for _, score in followed]
         # stage 2: landmarks for the people the detector found that are not followed already
@@ -671,22 +604,6 @@ class MediaPipePoseBackend:
             busy["landmarks"] += dt
             results.append(out)
         scores += [score for _, score in groups]
-        # stage 3: the people the detector does not see, proposed by person segmentation
-        if self.config.segment_search:
-            t = time.perf_counter()
-            known = [res[3].bbox for res in results if res is not None]
-            found = self._segment_search(frame, known, w, h, self._frame_index if self.video else None)
-            busy["segmentation"] = (time.perf_counter() - t) * self.config.workers
-            results += found
-            scores += [SEGMENT_SCORE] * len(found)
-        # stage 4: the people whose body shape the HOG detector found and nobody covers yet
-        if bodies:
-            t = time.perf_counter()
-            known = [res[3].bbox for res in results if res is not None]
-            found = self._body_search(frame, bodies, known, w, h)
-            busy["body"] += (time.perf_counter() - t) * self.config.workers
-            results += found
-            scores += [SEGMENT_SCORE] * len(found)
         # each result: (landmarks, region to follow next frame, region used, person)
         people = [res[3] for res in results if res is not None]
         nxt = [(res[1], score) for res, score in zip(results, scores, strict=True) if res is not None]
@@ -781,73 +698,6 @@ class MediaPipePoseBackend:
         person = replace(best[3], bbox=bbox)
         person.extra["fit_iou"] = fit_iou
         return (*best[:3], person)
-
-    def _segment_search(
-        self,
-        frame: NDArray[np.uint8],
-        known: list[NDArray[np.float64]],
-        w: int,
-        h: int,
-        turn: int | None = None,
-        run: Callable[[Callable[[_Graphs, Any], Any], list[Any]], list[Any]] | None = None,
-    ) -> list[tuple]:
-        """Landmark results (as the detector's) for the people that person segmentation proposes
-        and no box of ``known`` covers (:mod:`trustnav.perception.segment_search`). ``turn``: search
-        only that turn's share of the tiles (one in ``segment_frames``; None: all of them);
-        ``run(fn, items)``: how the graphs are run (default: the backend's workers)."""
-        run = run or self._map
-        windows = segment_windows(h, w, self.config.segment_tile)
-        n = self.config.segment_frames
-        if turn is not None and n > 1:
-            windows = windows[turn % n :: n]
-        mask = np.zeros((h, w), dtype=np.float32)
-        for (x0, y0, x1, y1), m in zip(windows, run(lambda g, win: g.segment(frame, win), windows), strict=True):
-            np.maximum(mask[y0:y1, x0:x1], m, out=mask[y0:y1, x0:x1])
-        regions = blob_regions(mask, 0.85 * SEGMENT_MIN_HEIGHT_PX)
-        proposals = [(roi, blob) for roi, blob in regions if not _covered(roi, known)]
-
-        def fit(g: _Graphs, proposal: tuple) -> tuple | None:
-            roi, blob = proposal
-            res = g.landmarks(frame, roi)
-            if res is None or _presence(res[0]) < SEGMENT_MIN_PRESENCE:
-                return None
-            person = self._person(res[0], SEGMENT_SCORE, w, h, res[2])
-            if person is None or not plausible(person.bbox, res[0], mask, blob):
-                return None
-            person.extra["segmented"] = True
-            return (*res, person)
-
-        return _distinct(run(fit, proposals))
-
-    def _body_search(
-        self,
-        frame: NDArray[np.uint8],
-        windows: list[NDArray[np.float64]],
-        known: list[NDArray[np.float64]],
-        w: int,
-        h: int,
-        run: Callable[[Callable[[_Graphs, Any], Any], list[Any]], list[Any]] | None = None,
-    ) -> list[tuple]:
-        """Landmark results (as the detector's) for the HOG people detector's ``windows`` that no box
-        of ``known`` covers, kept when the fit is of the person the window frames and made of person
-        pixels (:mod:`body_search`)."""
-        run = run or self._map
-        proposals = [win for win in windows if not _covered(window_region(win), known)]
-
-        def fit(g: _Graphs, win: NDArray[np.float64]) -> tuple | None:
-            res = g.landmarks(frame, window_region(win))
-            if res is None:
-                return None
-            person = self._person(res[0], SEGMENT_SCORE, w, h, res[2])
-            if person is None or not consistent(person.bbox, res[0], win):
-                return None
-            square = segment_square(person.bbox, w, h)
-            if person_share(person.bbox, g.segment(frame, square), square) < MIN_PERSON_SHARE:
-                return None  # a body-like shape that is not made of person pixels (a sign, a pole)
-            person.extra["body"] = True
-            return (*res, person)
-
-        return _distinct(run(fit, proposals))
 
     def _person(self, lm: NDArray[np.float64], score: float, w: int, h: int, roi: NDArray) -> Person | None:
         presence = _presence(lm)
@@ -960,24 +810,8 @@ def one_box_per_person(people: list[Person], iou: float) -> list[int]:
 
 
 def _secondary(p: Person) -> bool:
-    """Found only on a retried or refollowed region, from segmentation or from its body shape: gives way to
-    the detector's people."""
-    return any(p.extra.get(key, False) for key in ("retried", "refollowed", "segmented", "body"))
-
-
-def _covered(roi: NDArray[np.float64], known: list[NDArray[np.float64]]) -> bool:
-    """A proposed region's person lies mostly (0.6) inside one of the ``known`` boxes: not tried."""
-    return any(_contains(box, _region_box(roi), share=0.6, min_area=0.0) for box in known)
-
-
-def _distinct(results: list[tuple | None]) -> list[tuple]:
-    """The proposals' landmark results that fitted, each on its own person (a later fit on a person
-    already fitted, :data:`RETRY_MAX_IOU`, is dropped)."""
-    out: list[tuple] = []
-    for res in results:
-        if res is not None and all(box_iou(res[3].bbox, o[3].bbox) < RETRY_MAX_IOU for o in out):
-            out.append(res)
-    return out
+    """Found only on a retried or refollowed region: gives way to the detector's people."""
+    return any(p.extra.get(key, False) for key in ("retried", "refollowed"))
 
 
 def _region_box(roi: NDArray[np.float64]) -> NDArray[np.float64]:
