@@ -5,8 +5,9 @@ cannot swerve round a pedestrian who stands or walks in the middle of the road: 
 take it off the road. The MPC alone, looking a horizon of about half a second ahead, finds that out
 when it is too late to brake. This layer looks further, with the same constant-velocity prediction
 as the MPC, and moves the point the lane cost tracks to a stop short of such a pedestrian, so the
-car slows in time, waits, and goes on when the way is clear. It never touches the constraints:
-safety is exactly the MPC's.
+car slows in time, waits, and goes on when the way is clear. It never touches the CBF rows: safety
+is exactly the MPC's (with caution on, the controller also bounds its speed rows by the cap: a yield
+is a stop that no barrier's push creeps the car past).
 
 For each pedestrian, predicted every ``sample`` s over ``lookahead`` s (lateral offset ``d`` from
 the road's line, ``r`` its R plus any uncertainty margin; the car's centre may use
@@ -38,7 +39,9 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   while that prediction is ahead of the car and within R of the lane's line or of the line the car
   heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
   she walks drives the other first), for at most ``memory`` s. A dropped track says that the camera
-  no longer sees her, not that she has left the car's way.
+  no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
+  position along the road further short (given ``covariances``): a track coasted out of view drifts
+  along the line of sight, the monocular range.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
