@@ -115,25 +115,6 @@ def test_reaction_time_and_bad_options_are_named():
     assert on is not None and on.reaction == pytest.approx(0.2 + 0.3 + 0.1 + 0.05)
 
 
-def test_the_yields_view_distance_follows_the_camera():
-    """Where the camera sees a standing person whole (the yielding layer waits at least that far
-    short of whom it waits for, with caution on): the paper's camera, 1.7 m up and 1.5 m forward,
-    70 deg wide at 1280 x 720 (21.5 deg below its axis), sees the feet from 1.7 / tan(21.5 deg) =
-    4.3 m of depth; pitched down it sees nearer; the drive passes it to the caution only."""
-    from trustnav.geometry.camera import CameraSpec
-    from trustnav.sim.driving.world import whole_body_distance
-
-    paper = whole_body_distance(CameraSpec())
-    below = math.atan(360.0 / (640.0 / math.tan(math.radians(35.0))))
-    assert paper == pytest.approx(1.5 + 1.7 / math.tan(below)) and 5.7 < paper < 5.9
-    assert whole_body_distance(CameraSpec(pitch_deg=10.0)) < paper
-    assert whole_body_distance(CameraSpec(up=1.2)) < paper
-    assert ControlSpec().config(view=paper).caution.view == paper
-    assert ControlSpec(caution=False).config(view=paper).caution is None
-    with pytest.raises(ValueError, match="caution view"):
-        CautionConfig(view=-1.0)
-
-
 def test_the_controller_bounds_the_planned_speed_only_near_an_untrusted_pedestrian():
     cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0))
     road = RoadEdgeBarrier((-50.0, 0.0), (250.0, 0.0), left=3.0, right=3.0, margin=0.9)

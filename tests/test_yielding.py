@@ -186,22 +186,6 @@ def test_a_remembered_crosser_is_stopped_for_short_of_her_range_error():
     assert stop_after_drop(across) == pytest.approx(exact - z * 0.05, abs=1e-6)
 
 
-def test_the_stop_is_at_least_view_short_so_the_camera_keeps_her_whole():
-    """Issue 34 item 5: a car waiting R + gap short of a crosser has her feet below the image (the
-    paper's camera sees a standing person whole from 5.8 m ahead), so her track coasts while she
-    crosses and its growing region holds the car. ``view`` moves the stop back to where she stays
-    in view; a stop already further back is unchanged."""
-    y = Yielder(YieldConfig())
-    args = dict(pedestrians=np.array([[30.0, 0.0]]), velocities=np.zeros((1, 2)), **ROAD)
-    near = y.decide(np.zeros(2), 8.0, radii=np.array([2.5]), **args)
-    far = y.decide(np.zeros(2), 8.0, radii=np.array([2.5]), view=5.8, **args)
-    assert near.stop[0] == pytest.approx(30.0 - 3.5)
-    assert far.stop[0] == pytest.approx(30.0 - 5.8)
-    assert far.speed_cap < near.speed_cap
-    wide = y.decide(np.zeros(2), 8.0, radii=np.array([6.0]), view=5.8, **args)  # R + margin + gap = 7 m
-    assert wide.stop[0] == pytest.approx(30.0 - 7.0)
-
-
 def test_uncertainty_widens_who_blocks():
     assert _decide((30.0, -1.0), (0.0, 0.0)) is None
     assert _decide((30.0, -1.0), (0.0, 0.0), radii=np.array([3.5])) is not None

@@ -72,10 +72,7 @@ class CautionConfig:
     step-out of an untrusted pedestrian), ``trust_exponent`` (2: the reach of trust 0.5 is a
     quarter of trust 0's), ``deceleration`` (4 m/s^2, below the vehicle's 6: the braking the bound
     counts on), ``pass_speed`` (4 m/s: the floor), ``ease`` (3 m/s^2: how fast a lower bound
-    brings the speed rows down), ``view`` (m; 0: unused): how far ahead of the car's reference point
-    a standing person is whole in the camera's image; the yielding layer stops at least that far
-    short of whom it waits for, so that the camera keeps her in view while she crosses (the drive
-    derives it from its camera, 5.8 m for the paper's)."""
+    brings the speed rows down)."""
 
     reaction: float = 2.15
     walking_speed: float = 1.4
@@ -84,12 +81,10 @@ class CautionConfig:
     pass_speed: float = 4.0
     ease: float = 3.0
     unseen: float = 0.0
-    view: float = 0.0
 
     def __post_init__(self) -> None:
-        names = ("reaction", "walking_speed", "trust_exponent", "deceleration", "pass_speed", "ease", "unseen", "view")
-        zero_ok = ("reaction", "walking_speed", "pass_speed", "unseen", "view")
-        require_positive("caution", self, names, zero_ok=zero_ok)
+        names = ("reaction", "walking_speed", "trust_exponent", "deceleration", "pass_speed", "ease", "unseen")
+        require_positive("caution", self, names, zero_ok=("reaction", "walking_speed", "pass_speed", "unseen"))
 
 
 @dataclass(frozen=True)

@@ -243,12 +243,11 @@ class MpcController:
             # with caution, the velocity's uncertainty too (caution off: the paper's controller)
             cov = covariances if self.config.caution is not None and np.ndim(covariances) == 3 else None
             cov = cov if cov is None or np.shape(cov)[1] == 4 else None  # position-only covariances: no velocity
-            caution = self.config.caution
-            held = (now, self.config.safety_radius, float(x[2])) if caution is not None else (None,) * 3
+            held = (now, self.config.safety_radius, float(x[2])) if self.config.caution is not None else (None,) * 3
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
                                         peds, vels, radii, cov, _quantile(self.config.confidence),
-                                        *held, view=0.0 if caution is None else caution.view)  # fmt: skip
+                                        *held)  # fmt: skip
             if stop is not None:
                 held_stop = stop
                 ref = lane.reference

@@ -22,10 +22,7 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   barrier keeps R there).
 - **Yield** to a blocking pedestrian unless the car, at its present speed, has passed them
   ``clear_time`` s before their blocking begins. The stop is ``r + gap`` short of the nearest place
-  the pedestrian blocks; the speed is capped to brake there at ``deceleration``. Given ``view``
-  (with caution on: where a standing person is whole in the camera's image), the stop is at least
-  that far short: a car that waits nearer has her feet below the image, so she is out of view, her
-  track coasts and its growing region holds the car after she has crossed (issue 34 item 5).
+  the pedestrian blocks; the speed is capped to brake there at ``deceleration``.
 - **An uncertain velocity** (``covariances``: the estimates' covariances of (x, y, v_x, v_y), of
   which the sigma of the speed across the road counts; ``z``: the one-sided quantile of the
   controller's confidence) enters the judgement "the car is past them well before they block" on
@@ -129,7 +126,6 @@ class Yielder:
         time: float | None = None,
         safety_radius: float | None = None,
         heading: float | None = None,
-        view: float = 0.0,
     ) -> YieldDecision | None:
         """The stop for the nearest pedestrian the car must yield to, or None (drive on).
 
@@ -140,8 +136,7 @@ class Yielder:
         v_y) (None: the velocities are taken as exact) and ``z`` the quantile of its velocity;
         ``time`` (s) and ``safety_radius`` (R): remember whom the car waits for (None: stateless);
         ``heading`` (rad) of the car: one it remembers also blocks within R of the line it heads
-        along (None: the lane's direction); ``view`` (m): the stop is at least that far short of
-        whom the car waits for (where the camera sees her whole; 0: R + ``gap`` only)."""
+        along (None: the lane's direction)."""
         c = self.config
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
@@ -182,7 +177,7 @@ class Yielder:
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
             max(float(speed), 0.1), cov, float(z), n_real, d_lane, np.ascontiguousarray(position, dtype=float),
-            np.ascontiguousarray(ahead, dtype=float), extra, float(view),
+            np.ascontiguousarray(ahead, dtype=float), extra,
         )  # fmt: skip
         if remember and 0 <= j < n_real:
             # remembered as crossing: her velocity across the road only (along it, a frame's estimate
@@ -219,7 +214,7 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra, view):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
@@ -229,8 +224,7 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
     none where ``cov`` is empty) toward the road's line, is skipped. Pedestrians from ``n_real`` on
     are remembered, not seen: they block within their radius of the lane's line (``d_lane`` from the
     road's line) or of the line the car heads along (``ahead``, through ``car``), and their stop lies
-    ``extra[j - n_real]`` further short (their remembered position's range error). A stop is at
-    least ``view`` short of whom it is for."""
+    ``extra[j - n_real]`` further short (their remembered position's range error)."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
@@ -291,7 +285,7 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 top = max(top, s[k])
             if (top + r - s_car) / v + clear_time <= begins:
                 continue  # the car is past them well before they block
-        stop = low - max(r + gap, view) - (extra[j - n_real] if j >= n_real else 0.0)
+        stop = low - r - gap - (extra[j - n_real] if j >= n_real else 0.0)
         if best_j < 0 or stop < best_stop:
             best_stop, best_j = stop, j
     return best_stop, best_j

@@ -64,7 +64,6 @@ from trustnav.sim.driving.world import (
     pedestrian_bodies,
     pedestrian_states,
     street_of,
-    whole_body_distance,
 )
 from trustnav.sim.engine import Decision, EpisodeResult, Observation, Sample, make_mpc, run
 
@@ -646,7 +645,7 @@ def drive(
     sc = environment.scenario
     if max_frames is not None:
         environment.max_frames = max_frames
-    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency, whole_body_distance(sc.camera))
+    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency)
     model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
     policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road))
 

@@ -181,11 +181,9 @@ class ControlSpec:
         self.config()  # the controller's own checks (between fields)
         BoundedProportionalReference(self.reference_gain, self.reference_v_max)
 
-    def caution_config(self, camera_rate: float = 1.0, perception_latency: float = 0.0,
-                       view: float = 0.0) -> CautionConfig | None:  # fmt: skip
+    def caution_config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> CautionConfig | None:
         """The caution of a drive whose camera runs at ``camera_rate`` frames/s with that
-        perception latency (None when ``caution`` is off); ``view`` (m): where its camera sees a
-        standing person whole (:func:`whole_body_distance`; 0: unused)."""
+        perception latency (None when ``caution`` is off)."""
         if not self.caution:
             return None
         reaction = reaction_time(camera_rate, self.caution_confirm_frames, perception_latency, self.latency,
@@ -197,16 +195,14 @@ class ControlSpec:
             deceleration=self.caution_deceleration,
             pass_speed=self.caution_pass_speed,
             unseen=self.caution_unseen_frames / camera_rate,
-            view=view,
         )
 
-    def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0, view: float = 0.0) -> MpcConfig:
+    def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> MpcConfig:
         """The controller's configuration for a camera at ``camera_rate`` frames/s (it sets the
-        caution's reaction time) that sees a standing person whole from ``view`` m ahead of the car's
-        reference point on (where the yielding layer waits; 0: unused)."""
+        caution's reaction time)."""
         extra = {"deadline": self.deadline} if "deadline" in MpcConfig.__dataclass_fields__ else {}
         return MpcConfig(
-            caution=self.caution_config(camera_rate, perception_latency, view),
+            caution=self.caution_config(camera_rate, perception_latency),
             confidence=self.confidence,
             horizon=self.horizon,
             dt=self.dt,
@@ -572,19 +568,6 @@ def load_drive_scenario(name_or_path: str | Path) -> DriveScenario:
         raise ValueError(f"{name}: a numerical scenario of the paper (run it with `trustnav scenario`), "
                          "not a driving scenario")  # fmt: skip
     return _scenario_from_dict(data, name)
-
-
-def whole_body_distance(camera: CameraSpec) -> float:
-    """How far (m) ahead of the car's reference point a person standing on the ground is whole in
-    ``camera``'s image: nearer, the feet are below its bottom edge (``camera.up`` above the ground,
-    looking ``pitch_deg`` down, the image reaching ``height - cy`` pixels below its centre), so a
-    frame shows her cut off and the tracker keeps her as out of view. The caution's ``view``
-    (docs/drive.md, issue 34 item 5): 5.8 m for the paper's camera (1.5 m forward, 1.7 m up,
-    70 deg wide at 1280 x 720)."""
-    below = math.atan((camera.height - camera.principal[1]) / camera.focal_px) + math.radians(camera.pitch_deg)
-    if below >= math.radians(89.0):
-        return max(camera.forward, 0.0)
-    return max(camera.forward + camera.up / math.tan(below), 0.0)
 
 
 def pedestrian_states(scenario: DriveScenario, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
