@@ -19,6 +19,7 @@ from trustnav.control import (
     MpcConfig,
     MpcController,
     RoadEdgeBarrier,
+    YieldConfig,
     caution_bound,
     reaction_time,
 )
@@ -130,6 +131,32 @@ def test_the_controller_bounds_the_planned_speed_only_near_an_untrusted_pedestri
     ctl.reset()  # trusted: the same car keeps its speed
     free = ctl.step(x, ped, np.zeros((1, 2)), np.array([1.0]))
     assert free.predicted_states[1:, 3].max() > cap + 0.1 and free.detour is None
+
+
+def test_a_yield_is_a_stop_that_no_bystanders_growing_region_pushes_the_car_past():
+    """Issue 34 (10 frames/s, seed 1 run 65): a car waiting for a crosser (the yield's stop behind
+    it) was pushed forward at 0.4-0.7 m/s by the barrier of an unseen bystander beside it, whose
+    region grew, and the crosser passed its front at 2.32 m. With caution the yield's cap bounds the
+    speed rows too, and the car stays; the paper's controller (caution off) is unchanged and creeps."""
+    moved = {}
+    for caution in (CautionConfig(), None):
+        cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0))
+        road = RoadEdgeBarrier((-50.0, 0.0), (250.0, 0.0), left=3.0, right=3.0, margin=0.9)
+        cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, caution=caution, deterministic=True,
+                        yielding=YieldConfig())  # fmt: skip
+        ctl = MpcController(KinematicBicycle(), cost, cfg, barriers=[road])
+        x = np.array([2.0, 0.0, 0.0, 0.0])
+        # a crosser 3.5 m ahead in the lane, walking right; a bystander behind-left with a 1.5 m sigma
+        peds, vels = np.array([[5.5, 0.3], [0.5, 2.6]]), np.array([[0.0, -0.6], [0.0, 0.0]])
+        cov = np.stack([np.eye(4) * 0.01, np.diag([1.5**2, 1.5**2, 0.01, 0.01])])
+        for k in range(20):
+            sol = ctl.step(x, peds, vels, np.array([0.1, 0.6]), time=k * cfg.dt, covariances=cov)
+            assert sol.detour is not None and sol.detour.startswith("yielding: waiting")
+            x = sol.predicted_states[1]
+            peds = peds + vels * cfg.dt
+        moved[caution is not None] = float(x[0]) - 2.0
+    assert moved[True] == pytest.approx(0.0, abs=1e-3)
+    assert moved[False] > 0.2
 
 
 def _kerb(caution: bool, x_ped: float):

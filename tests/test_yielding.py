@@ -159,6 +159,33 @@ def test_a_remembered_crosser_moves_across_the_road_only():
     assert later.stop[0] == pytest.approx(first.stop[0], abs=1e-6)  # the stop stays where she crosses
 
 
+def test_a_remembered_crosser_is_stopped_for_short_of_her_range_error():
+    """Issue 34 (10 frames/s, seed 0 run 49): her track, out of view, drifted 1.2 m along the road
+    (the monocular range) before it was dropped; remembered at its mean, the stop (R + gap short)
+    brought the car forward to 2.24 m from her. The stop lies z sigma of her position along the
+    road further short; her uncertainty across the road does not move it, and without a covariance
+    (true states) the stop is as before."""
+    none = np.zeros((0, 2))
+    z = 1.645
+
+    def stop_after_drop(cov):
+        y = Yielder(YieldConfig())
+        peds, vels = np.array([[8.0, 1.5]]), np.array([[0.0, -0.6]])
+        assert y.decide(np.zeros(2), 0.0, pedestrians=peds, velocities=vels, radii=np.array([4.0]),
+                        covariances=cov, time=0.0, safety_radius=2.5, **ROAD) is not None  # fmt: skip
+        held = y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0),
+                        covariances=np.zeros((0, 4, 4)), time=0.5, safety_radius=2.5, **ROAD)  # fmt: skip
+        assert held is not None and held.pedestrian == -1
+        return float(held.stop[0])
+
+    exact = stop_after_drop(None)
+    assert exact == pytest.approx(8.0 - 2.5 - 1.0)
+    along = np.diag([1.2**2, 0.05**2, 0.01, 0.01])[None]  # sigma 1.2 m along the road (x)
+    assert stop_after_drop(along) == pytest.approx(exact - z * 1.2, abs=1e-6)
+    across = np.diag([0.05**2, 1.2**2, 0.01, 0.01])[None]  # the same across it
+    assert stop_after_drop(across) == pytest.approx(exact - z * 0.05, abs=1e-6)
+
+
 def test_uncertainty_widens_who_blocks():
     assert _decide((30.0, -1.0), (0.0, 0.0)) is None
     assert _decide((30.0, -1.0), (0.0, 0.0), radii=np.array([3.5])) is not None

@@ -236,6 +236,7 @@ class MpcController:
             if waypoint is not None:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
         # the yielding layer may stop the car short of someone (with caution, also someone it remembers)
+        held_stop = None
         if self._yielder is not None and (len(peds) or self.config.caution is not None):
             road, lane = self._road, p.cost
             radii = self._radii(len(peds), margins)
@@ -248,12 +249,19 @@ class MpcController:
                                         peds, vels, radii, cov, _quantile(self.config.confidence),
                                         *held)  # fmt: skip
             if stop is not None:
+                held_stop = stop
                 ref = lane.reference
                 capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
                 p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
         if self.config.caution is not None:  # caution: the speed bound of who might step out
             detour = self._caution(x, peds, tr, margins, detour)
+            if held_stop is not None and type(self.model) is KinematicBicycle:
+                # a yield is a stop: its cap bounds the speed rows too (lowered by at most ``ease``
+                # per step), so no barrier's push (an unseen bystander's growing region) creeps the
+                # car past it into the way of whom it waits for
+                ease = self.config.caution.ease * self.config.dt
+                p.speed_cap = min(p.speed_cap, max(held_stop.speed_cap, float(x[3]) - ease))
         try:
             p.set_checked_stage(x, peds, vels, tr, self._last_control, margins)
         finally:

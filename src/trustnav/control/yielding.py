@@ -5,8 +5,9 @@ cannot swerve round a pedestrian who stands or walks in the middle of the road: 
 take it off the road. The MPC alone, looking a horizon of about half a second ahead, finds that out
 when it is too late to brake. This layer looks further, with the same constant-velocity prediction
 as the MPC, and moves the point the lane cost tracks to a stop short of such a pedestrian, so the
-car slows in time, waits, and goes on when the way is clear. It never touches the constraints:
-safety is exactly the MPC's.
+car slows in time, waits, and goes on when the way is clear. It never touches the CBF rows: safety
+is exactly the MPC's (with caution on, the controller also bounds its speed rows by the cap: a yield
+is a stop that no barrier's push creeps the car past).
 
 For each pedestrian, predicted every ``sample`` s over ``lookahead`` s (lateral offset ``d`` from
 the road's line, ``r`` its R plus any uncertainty margin; the car's centre may use
@@ -38,7 +39,9 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   while that prediction is ahead of the car and within R of the lane's line or of the line the car
   heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
   she walks drives the other first), for at most ``memory`` s. A dropped track says that the camera
-  no longer sees her, not that she has left the car's way.
+  no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
+  position along the road further short (given ``covariances``): a track coasted out of view drifts
+  along the line of sight, the monocular range.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -100,7 +103,8 @@ class Yielder:
 
     def __init__(self, config: YieldConfig) -> None:
         self.config = config
-        self._memory: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None
+        # position, velocity across the road, time, and the sigma of the position along the road
+        self._memory: tuple[NDArray[np.float64], NDArray[np.float64], float, float] | None = None
 
     def reset(self) -> None:
         self._memory = None
@@ -142,8 +146,9 @@ class Yielder:
         d_lane = float((lane_start - road_start) @ road_normal)  # the lane's line, where the car drives
         # the line the car heads along (a car stopped turned toward where she walks drives it first)
         ahead = axis if heading is None else np.array([math.cos(heading), math.sin(heading)])
+        extra = np.zeros(1)  # how much further short of her the stop lies (one remembered: her range error)
         if remember and self._memory is not None:  # she vanished from the inputs? keep her prediction
-            pos, vel, t0 = self._memory
+            pos, vel, t0, along_sigma = self._memory
             pred = pos + vel * (float(time) - t0)
             near = float(safety_radius)
             off_lane = abs(float((pred - road_start) @ road_normal) - d_lane) >= near
@@ -158,6 +163,7 @@ class Yielder:
                 pedestrians = np.vstack([np.asarray(pedestrians, dtype=float).reshape(-1, 2), pred])
                 velocities = np.vstack([np.asarray(velocities, dtype=float).reshape(-1, 2), vel])
                 radii = np.append(np.asarray(radii, dtype=float), near)
+                extra[0] = float(z) * along_sigma
                 if covariances is not None:
                     covariances = np.concatenate([np.asarray(covariances, dtype=float), np.zeros((1, 4, 4))])
         if len(pedestrians) == 0:
@@ -171,14 +177,17 @@ class Yielder:
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
             max(float(speed), 0.1), cov, float(z), n_real, d_lane, np.ascontiguousarray(position, dtype=float),
-            np.ascontiguousarray(ahead, dtype=float),
+            np.ascontiguousarray(ahead, dtype=float), extra,
         )  # fmt: skip
         if remember and 0 <= j < n_real:
             # remembered as crossing: her velocity across the road only (along it, a frame's estimate
             # is the monocular range's drift; kept, it moved her prediction, and the stop, ahead of a
             # creeping car while she crossed in front of it)
             across = float(np.asarray(velocities[j], dtype=float) @ road_normal) * np.asarray(road_normal, dtype=float)
-            self._memory = (np.array(pedestrians[j], dtype=float), across, float(time))
+            # and her position's uncertainty along the road (the monocular range's), which sets how far
+            # short of her remembered place the car stops
+            along_sigma = 0.0 if not cov.shape[0] else math.sqrt(max(float(axis @ cov[j, :2, :2] @ axis), 0.0))
+            self._memory = (np.array(pedestrians[j], dtype=float), across, float(time), along_sigma)
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None
@@ -205,7 +214,7 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
@@ -214,7 +223,8 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
     velocity and at it raised by z sigma (its component across the road, from ``cov`` (N, 4, 4);
     none where ``cov`` is empty) toward the road's line, is skipped. Pedestrians from ``n_real`` on
     are remembered, not seen: they block within their radius of the lane's line (``d_lane`` from the
-    road's line) or of the line the car heads along (``ahead``, through ``car``)."""
+    road's line) or of the line the car heads along (``ahead``, through ``car``), and their stop lies
+    ``extra[j - n_real]`` further short (their remembered position's range error)."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
@@ -275,7 +285,7 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 top = max(top, s[k])
             if (top + r - s_car) / v + clear_time <= begins:
                 continue  # the car is past them well before they block
-        stop = low - r - gap
+        stop = low - r - gap - (extra[j - n_real] if j >= n_real else 0.0)
         if best_j < 0 or stop < best_stop:
             best_stop, best_j = stop, j
     return best_stop, best_j
