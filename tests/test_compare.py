@@ -46,6 +46,22 @@ def test_what_trust_buys_in_case_1(case1):
     assert all(r["margin_violations"] == 0 for r in rows.values())
 
 
+@pytest.mark.slow
+def test_what_trust_buys_on_the_step_out_street():
+    """Issue 34, item 3: on step-out.toml the trust-aware car meets the texter at R and passes the
+    trusted watcher at speed; constant trust 0 slows past her too and arrives later."""
+    from pathlib import Path
+
+    scenario = load_drive_scenario(Path(__file__).parents[1] / "examples/scenarios/step-out.toml")
+    rows = {r["mode"]: r for r in comparison_rows(compare_trust(scenario, sensing="keypoints", seed=0))}
+    t = {mode: r["time_to_goal"] for mode, r in rows.items()}
+    texter = {mode: r["pedestrians"][0]["min_distance"] for mode, r in rows.items()}
+    assert all(v is not None for v in t.values())  # every car arrives
+    assert texter["trust-aware"] >= 2.5 and rows["trust-aware"]["margin_violations"] == 0
+    assert t["constant trust 0"] > t["trust-aware"] + 0.5  # slow past the trusted watcher too
+    assert texter["constant trust 1"] < texter["trust-aware"] - 0.3  # trust-blind at 1: nearer the texter
+
+
 def test_cli_compare_writes_one_figure_a_table_and_metrics(tmp_path, capsys):
     out = tmp_path / "cmp"
     assert main(["compare", "case-2", "--out", str(out)]) == 0
