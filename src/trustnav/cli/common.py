@@ -19,6 +19,7 @@ BOUNDS: dict[str, Number | Integer] = {
     "control_rate": Number(1, 200, unit=" steps per second"),
     "fps": Number(0, 240, lo_open=True, unit=" frames per second"),
     "scan_frames": Integer(1, 100, whole_floats=True),
+    "crop_fits": Integer(1, 7, whole_floats=True),  # perception.crop_ensemble: 1 + len(CROP_PERTURBATIONS)
     "sharpen": Number(0, 3),
     "max_frames": Integer(1, whole_floats=True),
     "max_seconds": Number(0, lo_open=True, unit=" s"),

@@ -47,6 +47,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="the YOLOX-Nano ONNX file (default: ../shared/models/yolox/ of a checkout, "
                    "$TRUSTNAV_YOLOX_MODEL, the user cache, else downloaded once; a FILE given is never "
                    "downloaded)")  # fmt: skip
+    e.add_argument("--crop-fits", type=int, default=None,
+                   help=f"offline, detector proposer: each person's landmarks the median of N fits on crops moved "
+                   f"by 1 px (steadier keypoints), {span('crop_fits')} (default 1: one fit; "
+                   "5: the fit and 4 moved by a pixel; docs/perception.md)")  # fmt: skip
     e.add_argument("--perception", choices=["offline", "realtime"], default=None,
                    help="offline (default for files): every box of every frame fitted; realtime (= --realtime, "
                    "the default for live input): the detector on every frame, landmarks staggered "
@@ -110,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from trustnav.viz.report import estimate_summary
 
     # everything that can be refused is refused before the output folder is touched
-    check_bounds(args, "fps", "scan_frames", "sharpen", "camera_height", "fov", "pitch")
+    check_bounds(args, "fps", "scan_frames", "sharpen", "camera_height", "fov", "pitch", "crop_fits")
     ground = None
     if args.camera_height is not None:
         ground = FixedCameraGround(args.camera_height, 70.0 if args.fov is None else args.fov, args.pitch or 0.0)
@@ -128,10 +132,14 @@ def run(args: argparse.Namespace) -> int:
         args.perception = "realtime" if live and mediapipe else "offline"
     if args.perception == "realtime" and (args.backend != "mediapipe" or args.proposer != "detector"):
         raise ValueError("--realtime runs on the mediapipe backend with the detector as proposer")
+    detector_path = args.backend == "mediapipe" and args.proposer == "detector"
     legacy = args.sharpen or args.scan_frames != 1 or args.no_body_search
     if legacy and (args.backend != "mediapipe" or args.proposer != "blazepose"):
         raise ValueError("--sharpen, --scan-frames and --no-body-search apply to --proposer blazepose (mediapipe) only")
-    if args.backend == "mediapipe" and args.proposer == "detector":
+    if args.crop_fits not in (None, 1) and (args.perception != "offline" or not detector_path):
+        raise ValueError("--crop-fits applies to offline perception with the detector proposer (mediapipe) only")
+    crop_fits = args.crop_fits or 1
+    if detector_path:
         args.detector_model = str(resolve_model(args.detector_model))  # a missing file: refused here
     elif args.detector_model is not None:
         raise ValueError("--detector-model applies to --proposer detector (mediapipe backend) only")
@@ -152,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     with folder, contextlib.closing(live_source) if live_source is not None else contextlib.nullcontext():
         mediapipe = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "body_search": not args.no_body_search,
                      "proposer": args.proposer, "detector_model": args.detector_model}  # fmt: skip
-        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime",
+        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime", crop_fits=crop_fits,
                                **(mediapipe if args.backend == "mediapipe" else {}))  # fmt: skip
         extra = (() if face is None else FACE_FIELDS) + (() if ground is None else ground.FIELDS)
         output = EstimateOutput(folder.path, sequences, args.mp4, extra, not args.no_images,

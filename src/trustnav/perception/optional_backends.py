@@ -78,10 +78,15 @@ class UltralyticsPoseBackend:
         return out
 
 
-def make_backend(name: str, *, video: bool = False, realtime: bool = False, **kwargs: Any) -> Any:
+def make_backend(name: str, *, video: bool = False, realtime: bool = False, crop_fits: int = 1, **kwargs: Any) -> Any:
     """Pose backend by name: 'mediapipe' (default, offline), 'openpifpaf' or 'yolo'; ``realtime``
     (mediapipe only): the search for new people beside the frame loop
-    (:class:`~trustnav.perception.realtime.RealtimePoseBackend`)."""
+    (:class:`~trustnav.perception.realtime.RealtimePoseBackend`); ``crop_fits`` > 1 (offline
+    mediapipe only): each person's landmarks the median of that many fits on moved crops
+    (:class:`~trustnav.perception.crop_ensemble.CropEnsembleBackend`)."""
+    if crop_fits != 1 and (realtime or name != "mediapipe"):
+        raise ValueError(f"crop_fits applies to the offline mediapipe backend only, got {crop_fits!r} with {name!r}"
+                         f"{' in real time' if realtime else ''}")  # fmt: skip
     if realtime:
         if name != "mediapipe":
             raise ValueError(f"real-time perception is built on the mediapipe backend, not {name!r}")
@@ -92,6 +97,10 @@ def make_backend(name: str, *, video: bool = False, realtime: bool = False, **kw
     if name == "mediapipe":
         from trustnav.perception.mediapipe_backend import MediaPipeConfig, MediaPipePoseBackend
 
+        if crop_fits != 1:
+            from trustnav.perception.crop_ensemble import CropEnsembleBackend
+
+            return CropEnsembleBackend(MediaPipeConfig(**kwargs), video=video, fits=crop_fits)
         return MediaPipePoseBackend(MediaPipeConfig(**kwargs), video=video)
     if name == "openpifpaf":
         return OpenPifPafBackend(**kwargs)
