@@ -25,6 +25,7 @@ rendered video; nothing was tuned on them) are reported on their own rows and le
     python benchmarks/trust_eval.py --json /tmp/trust_eval.json
     python benchmarks/trust_eval.py --estimate-arg=--face     # a non-default option of estimate
     python benchmarks/trust_eval.py --jitter 3  # also on frames shifted by 1-2 px: the figures' spread
+    python benchmarks/trust_eval.py --by-height # also phone use and eye contact per labelled person height
     python benchmarks/trust_eval.py --mp4       # also the frame sequences through an MP4 round trip
                                                 # (records kept: their count, and those of the same person)
 """
