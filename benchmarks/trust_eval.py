@@ -25,6 +25,7 @@ rendered video; nothing was tuned on them) are reported on their own rows and le
     python benchmarks/trust_eval.py --json /tmp/trust_eval.json
     python benchmarks/trust_eval.py --estimate-arg=--face     # a non-default option of estimate
     python benchmarks/trust_eval.py --jitter 3  # also on frames shifted by 1-2 px: the figures' spread
+    python benchmarks/trust_eval.py --by-height # also phone use and eye contact per labelled person height
     python benchmarks/trust_eval.py --mp4       # also the frame sequences through an MP4 round trip
                                                 # (records kept: their count, and those of the same person)
 """
@@ -53,6 +54,8 @@ DUPLICATE_IOU = 0.3
 DUPLICATE_INSIDE = 0.7
 IGNORE_INSIDE = 0.5
 THRESHOLD = 0.5
+#: Person-height bands (labelled box height, pixels) of the per-height cue table (``--by-height``).
+HEIGHT_BANDS = ((0, 100), (100, 150), (150, 250), (250, 10_000))
 #: Whole-pixel translations (dx, dy) of the frames tried by ``--jitter K`` (the first K).
 JITTER_SHIFTS = ((1, 0), (0, 1), (1, 1), (2, 0), (0, 2), (2, 2))
 
@@ -148,6 +151,11 @@ def binary_scores(pairs: Iterable[tuple[bool | None, float | None]], thr: float 
     return {"tp": tp, "fp": fp, "fn": fn, "tn": tn, "precision": precision, "recall": recall, "f1": f1}
 
 
+def band_name(lo: float, hi: float) -> str:
+    """'< 100 px', '100-150 px', '>= 250 px'."""
+    return f"< {hi} px" if lo <= 0 else f">= {lo} px" if hi >= HEIGHT_BANDS[-1][1] else f"{lo}-{hi} px"
+
+
 def evaluate(labels: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Compare ``tracks.json`` records with one set's labels (only the labelled frames count)."""
     by_frame: dict[str, list[Mapping[str, Any]]] = {}
@@ -156,6 +164,7 @@ def evaluate(labels: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) ->
     people = found = dup = false = ignored = 0
     tracks: dict[str, list[int | None]] = {}
     phone, eye, misses, false_boxes = [], [], [], []
+    heights: list[float] = []
     for name, frame in labels["frames"].items():
         recs = by_frame.get(name, [])
         labelled = frame["people"]
@@ -175,6 +184,7 @@ def evaluate(labels: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) ->
                 continue
             phone.append((p.get("phone"), recs[d].get("phone")))
             eye.append((p.get("eye_contact"), recs[d].get("eye_contact")))
+            heights.append(p["bbox"][3] - p["bbox"][1])
     return {
         "frames": len(labels["frames"]),
         "people": people,
@@ -188,6 +198,13 @@ def evaluate(labels: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) ->
         "persons": len(tracks),
         "phone": binary_scores(phone),
         "eye_contact": binary_scores(eye),
+        "by_height": {
+            band_name(lo, hi): {
+                "phone": binary_scores(pair for pair, h in zip(phone, heights, strict=True) if lo <= h < hi),
+                "eye_contact": binary_scores(pair for pair, h in zip(eye, heights, strict=True) if lo <= h < hi),
+            }
+            for lo, hi in HEIGHT_BANDS
+        },
         "missed": misses,
         "false_list": false_boxes,
     }
@@ -368,9 +385,20 @@ def total(results: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     out["recall"] = out["found"] / out["people"] if out["people"] else None
     for trait in ("phone", "eye_contact"):
         c = {k: sum(r[trait][k] for r in results.values()) for k in ("tp", "fp", "fn", "tn")}
-        pairs = [(True, 1.0)] * c["tp"] + [(False, 1.0)] * c["fp"] + [(True, 0.0)] * c["fn"] + [(False, 0.0)] * c["tn"]
-        out[trait] = binary_scores(pairs)
+        out[trait] = _from_counts(c)
+    out["by_height"] = {}
+    for band in next(iter(results.values()), {}).get("by_height", {}):
+        out["by_height"][band] = {}
+        for trait in ("phone", "eye_contact"):
+            c = {k: sum(r["by_height"][band][trait][k] for r in results.values()) for k in ("tp", "fp", "fn", "tn")}
+            out["by_height"][band][trait] = _from_counts(c)
     return out
+
+
+def _from_counts(c: Mapping[str, int]) -> dict[str, Any]:
+    """:func:`binary_scores` of TP/FP/FN/TN counts."""
+    return binary_scores([(True, 1.0)] * c["tp"] + [(False, 1.0)] * c["fp"] + [(True, 0.0)] * c["fn"]
+                         + [(False, 0.0)] * c["tn"])  # fmt: skip
 
 
 def print_table(results: Mapping[str, Mapping[str, Any]], tuned: Mapping[str, str]) -> None:
@@ -404,6 +432,26 @@ def _figures(r: Mapping[str, Any]) -> dict[str, float | None]:
     return {"recall": r["recall"], "false": r["false_boxes"], "dup": r["duplicates"],
             "phone P": r["phone"]["precision"], "phone R": r["phone"]["recall"],
             "eye P": r["eye_contact"]["precision"], "eye R": r["eye_contact"]["recall"]}  # fmt: skip
+
+
+def print_by_height(results: Mapping[str, Mapping[str, Any]]) -> None:
+    """Phone use and eye contact per labelled person height (``--by-height``): the sets in "all"
+    together, then each held-out set."""
+    plain = {k: v for k, v in results.items() if "psnr_db" not in v}
+    groups = [("all", total(plain))] if any(not v.get("held_out") for v in plain.values()) else []
+    groups += [(k, v) for k, v in plain.items() if v.get("held_out")]
+    print()
+    print("Cues per labelled person height (TP/FP/FN/TN; P/R/F1):")
+    print("| set | height | phone TP/FP/FN/TN | phone P/R/F1 | eye TP/FP/FN/TN | eye P/R/F1 |")
+    print("|---|---|---|---|---|---|")
+    for name, r in groups:
+        for band, b in r["by_height"].items():
+            cells = []
+            for trait in ("phone", "eye_contact"):
+                t = b[trait]
+                cells += [f"{t['tp']}/{t['fp']}/{t['fn']}/{t['tn']}",
+                          f"{_pct(t['precision'])}/{_pct(t['recall'])}/{_pct(t['f1'])}"]  # fmt: skip
+            print(f"| {name} | {band} | " + " | ".join(cells) + " |")
 
 
 def print_spread(results: Mapping[str, Mapping[str, Any]], spread: Sequence[Mapping[str, Any]]) -> None:
@@ -457,6 +505,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="also run each frame-sequence set as an MP4 (OpenCV mp4v, ~36 dB PSNR): the records and labelled "
         "people kept under mild video compression",
+    )
+    parser.add_argument(
+        "--by-height",
+        action="store_true",
+        help="also print phone use and eye contact per labelled person height (<100, 100-150, 150-250, >=250 px)",
     )
     parser.add_argument("--keep", type=Path, help="keep the estimate outputs (and rendered frames) in this folder")
     parser.add_argument(
@@ -518,6 +571,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                 shifted[name] = {**evaluate(labels, records), "held_out": bool(labels.get("held_out"))}
             spread.append({"shift_px": [dx, dy], "sets": shifted, "all": total(shifted)})
     print_table(results, tuned)
+    if args.by_height:
+        print_by_height(results)
     if spread:
         print_spread(results, spread)
     if args.json:

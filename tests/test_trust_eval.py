@@ -125,6 +125,26 @@ def test_evaluate_on_a_tiny_sequence():
     assert te.total({"a": r, "b": r})["people"] == 6
 
 
+def test_cues_per_person_height_split_the_counts_by_the_labelled_box():
+    people = [{"id": f"p{h}", "bbox": [10 * i, 0, 10 * i + 8, h], "phone": h >= 150, "eye_contact": h < 150}
+              for i, h in enumerate((60, 120, 200, 300))]  # fmt: skip
+    labels = {"frames": {"f0": {"people": people, "ignore": []}}}
+    records = [{"frame": "f0", "track_id": i, "bbox": p["bbox"], "phone": 0.9, "eye_contact": 0.9}
+               for i, p in enumerate(people)]  # fmt: skip
+    r = te.evaluate(labels, records)
+    bands = r["by_height"]
+    assert list(bands) == ["< 100 px", "100-150 px", "150-250 px", ">= 250 px"]
+    assert [(b["phone"]["tp"], b["phone"]["fp"]) for b in bands.values()] == [(0, 1), (0, 1), (1, 0), (1, 0)]
+    assert [(b["eye_contact"]["tp"], b["eye_contact"]["fp"]) for b in bands.values()] == [
+        (1, 0),
+        (1, 0),
+        (0, 1),
+        (0, 1),
+    ]
+    both = te.total({"a": r, "b": r})["by_height"]
+    assert both["150-250 px"]["phone"]["tp"] == 2 and both["< 100 px"]["eye_contact"]["tp"] == 2
+
+
 def test_help_runs():
     with pytest.raises(SystemExit) as exc:
         te.parse_args(["--help"])
