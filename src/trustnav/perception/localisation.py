@@ -24,8 +24,10 @@ pixels for five unknowns:
 
 The fit's covariance (Gauss-Newton, (J' W J + priors)^-1) is the estimate's uncertainty: pixel
 noise (a share of the person's pixel height, plus a floor), the spread of the body ratios, the
-stature prior, the pitch and the feet. It grows by the fit's reduced chi^2 when above 1 (a body
-stretched or squashed). The position's marginal 2x2 block is returned in world coordinates.
+stature prior, the pitch and the feet. The pixels' noise grows by the fit's reduced chi^2 when
+above 1 (a body stretched or squashed, a walker's limbs off the centre line); the priors do not
+(before 26 Nov the whole covariance grew, the stature prior with it, and a walker's range region
+was too wide: issue 34). The position's marginal 2x2 block is returned in world coordinates.
 Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
 """
 
@@ -260,10 +262,11 @@ class GroundLocaliser:
         if pred is None:
             return None
         # a body that does not fit the model (a detection stretched or squashed) is not believed
-        # more than its residuals allow: the covariance grows by the reduced chi^2 when above 1
+        # more than its residuals allow: the pixels' noise grows by the reduced chi^2 when above 1;
+        # the priors (people's stature, the pitch, the feet) are not the pixels' and keep their width
         fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
         try:
-            cov = np.linalg.inv(jac.T @ (w[:, None] * jac) + np.diag(prior_w)) * max(1.0, fit)
+            cov = np.linalg.inv(jac.T @ ((w / max(1.0, fit))[:, None] * jac) + np.diag(prior_w))
         except np.linalg.LinAlgError:
             return None
         pos = theta[:2].copy()
