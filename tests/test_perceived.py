@@ -210,6 +210,38 @@ def test_frames_close_together_count_as_one_placement_at_any_rate():
         WorldTrackerConfig(error_correlation_s=-1.0)
 
 
+def test_a_walkers_stride_renews_the_errors_a_standing_persons_sway_does_not():
+    """pose_change (issue 34 item 4): the detector's bias repeats while the pose does. On rendered
+    frames at 10 frames/s a walker's placement errors correlate by -0.14 one frame apart, a standing
+    person's by 0.66 (docs/perceived.md): frames whose limbs moved are folded in as new placements,
+    frames of the same pose as one."""
+    from trustnav.perception.localisation import pose_change
+
+    rng = np.random.default_rng(3)
+    pose = rng.uniform(-0.3, 0.3, (8, 2))
+    assert pose_change(pose, pose) == 0.0 and math.isnan(pose_change(pose, None))
+    hidden = pose.copy()
+    hidden[2:] = np.nan  # fewer than 3 limbs in common: not known
+    assert math.isnan(pose_change(hidden, pose))
+
+    def sigma(shapes, config):
+        tr = WorldTracker(config)
+        for k, shape in enumerate(shapes):
+            e = _estimate((0.0, 0.6), sigma=0.3)
+            tr.add_frame(k / 10.0, [GroundEstimate(e.position, e.covariance, 10.0, 1.7, 0.0, 7, 1.0, shape)])
+        return math.sqrt(np.linalg.eigvalsh(tr.predict(2.0)[0].covariance[:2, :2])[-1])
+
+    still = [pose + rng.normal(0.0, 0.005, pose.shape) for _ in range(21)]  # sway and jitter
+    stride = [pose + 0.1 * np.sin(np.pi * 1.8 * k / 10.0 + np.arange(8))[:, None] for k in range(21)]
+    cfg = WorldTrackerConfig(error_correlation_s=2.2, error_shared=0.66, pose_change=0.03)
+    blind = WorldTrackerConfig(error_correlation_s=2.2, error_shared=0.66)
+    assert sigma(still, cfg) == pytest.approx(sigma(still, blind), rel=0.05)  # one pose: as before
+    assert sigma(stride, cfg) < 0.7 * sigma(stride, blind)  # a stride: more placements
+    assert sigma(stride, blind) == pytest.approx(sigma(still, blind))  # the pose unseen: no difference
+    with pytest.raises(ValueError, match="pose_change"):
+        WorldTrackerConfig(pose_change=-0.1)
+
+
 def test_error_correlation_follows_the_sensing_and_an_explicit_value_wins():
     """Keypoint sensing draws its joints' errors anew in each frame, rendered frames repeat the
     detector's bias: the tracker's default error_correlation_s follows the sensing."""
@@ -220,6 +252,9 @@ def test_error_correlation_follows_the_sensing_and_an_explicit_value_wins():
     assert (render.error_correlation_s, render.error_shared) == (2.2, 0.66)
     assert SensingSpec(error_correlation_s=0.5).tracker(keypoints=True).error_correlation_s == 0.5
     assert SensingSpec(error_shared=0.3).tracker(keypoints=False).error_shared == 0.3
+    assert (render.pose_change, SensingSpec().tracker(keypoints=True).pose_change) == (0.015, 0.0)
+    with pytest.raises(ValueError, match="pose_change"):
+        SensingSpec(pose_change=2.0)
     with pytest.raises(ValueError, match="error_correlation_s"):
         SensingSpec(error_correlation_s=-1.0)
     with pytest.raises(ValueError, match="error_shared"):
