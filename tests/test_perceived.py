@@ -252,7 +252,7 @@ def test_error_correlation_follows_the_sensing_and_an_explicit_value_wins():
     assert (render.error_correlation_s, render.error_shared) == (2.2, 0.66)
     assert SensingSpec(error_correlation_s=0.5).tracker(keypoints=True).error_correlation_s == 0.5
     assert SensingSpec(error_shared=0.3).tracker(keypoints=False).error_shared == 0.3
-    assert (render.pose_change, SensingSpec().tracker(keypoints=True).pose_change) == (0.015, 0.0)
+    assert (render.pose_change, SensingSpec().tracker(keypoints=True).pose_change) == (0.03, 0.0)
     with pytest.raises(ValueError, match="pose_change"):
         SensingSpec(pose_change=2.0)
     with pytest.raises(ValueError, match="error_correlation_s"):
