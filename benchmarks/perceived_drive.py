@@ -13,6 +13,13 @@ the 90 % region) and identity switches.
     python benchmarks/perceived_drive.py --render        # adds Cases I and II in render mode (~2 min more)
     python benchmarks/perceived_drive.py --render --render-seeds 3 --rate 10   # 3 render runs at 10 frames/s
     python benchmarks/perceived_drive.py --caution on    # with the trust-aware speed bound (issue 34)
+    python benchmarks/perceived_drive.py --render --skip-keypoints --render-seeds 5 --vary   # 5 different worlds
+
+A rendered drive has no randomness of its own (the seed draws only the keypoint sensor's noise and
+the controller input's), so without ``--vary`` every render seed drives the same world and gives the
+same figures. ``--vary`` draws each seed's world from the seed (:func:`varied`): each pedestrian
+moved along the road by N(0, 1 m) and across it by N(0, 0.2 m), turned by U(-20, 20) deg, at a random
+phase of its sway; the figures then pool different detector errors.
 """
 
 from __future__ import annotations
@@ -28,6 +35,31 @@ import numpy as np
 from trustnav.perception.localisation import chi2_90
 from trustnav.sim.driving.episode import STATES, run_drive
 from trustnav.sim.driving.world import load_drive_scenario
+
+
+def varied(sc, seed: int):
+    """``sc`` with its pedestrians placed, turned and swaying as drawn from ``seed`` (``--vary``): along
+    the road N(0, 1 m), across it N(0, 0.2 m) (Case I's stay on the sidewalk), body yaw U(-20, 20) deg
+    (the alternative behaviour's too), the sway's phase U(0, 1)."""
+    rng = np.random.default_rng([seed, 34])
+    road = np.subtract(sc.road.end, sc.road.start)
+    along = road / np.linalg.norm(road)
+    across = np.array([-along[1], along[0]])
+    peds = []
+    for q in sc.pedestrians:
+        shift = along * rng.normal(0.0, 1.0) + across * rng.normal(0.0, 0.2)
+        turn = float(rng.uniform(-20.0, 20.0))
+        alt = tuple((k, v + turn if k == "body_yaw_deg" else v) for k, v in q.alternative)
+        peds.append(
+            dataclasses.replace(
+                q,
+                position=tuple(float(c) for c in np.add(q.position, shift)),
+                body_yaw_deg=q.body_yaw_deg + turn,
+                phase=float(rng.uniform(0.0, 1.0)),
+                alternative=alt,
+            )
+        )
+    return dataclasses.replace(sc, pedestrians=tuple(peds))
 
 
 def _frame_errors(r) -> list[tuple[float, float, bool]]:
@@ -52,6 +84,7 @@ def _case_runs(
     caution: bool | None = None,
     error_correlation: float | None = None,
     only: bool | None = None,
+    vary: bool = False,
     **kw,
 ) -> list[dict]:
     sc = load_drive_scenario(name)
@@ -64,9 +97,10 @@ def _case_runs(
         variants = [only]
     out = []
     for seed in seeds:
+        world = varied(sc, seed) if vary else sc  # --vary: each seed its own world
         runs, errors = {}, []
         for att in variants:
-            r = run_drive(sc, sensing=sensing, seed=seed, attentive=att, state=state, **kw)
+            r = run_drive(world, sensing=sensing, seed=seed, attentive=att, state=state, **kw)
             m = r.metrics()
             m.pop("per_frame", None)
             runs["attentive" if att else "distracted" if att is False else "both"] = m
@@ -138,6 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--caution", choices=("on", "off"), help="the trust-aware speed bound (default: the presets', off)")
     ap.add_argument("--json", help="write the summary rows to this file")
     ap.add_argument("--first-seed", type=int, default=0, help="first seed (default 0; calibrate on others)")
+    ap.add_argument(
+        "--vary", action="store_true", help="each seed its own world (pedestrians moved, turned; see above)"
+    )
     ap.add_argument("--error-correlation", type=float, help="[sensing] error_correlation_s (default: the presets')")
     args = ap.parse_args(argv)
     caution = None if args.caution is None else args.caution == "on"
@@ -154,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, gap in () if args.skip_keypoints else (("case-1", 1.0), ("case-2", 0.5)):
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         runs = _case_runs(name, seeds, args.state, caution=caution, capture_rate=args.rate,
-                          error_correlation=args.error_correlation)  # fmt: skip
+                          error_correlation=args.error_correlation, vary=args.vary)  # fmt: skip
         rows.append(summarise(name, runs, gap))
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
@@ -169,7 +206,8 @@ def main(argv: list[str] | None = None) -> int:
                     try:
                         entries += _case_runs(name, range(seed, seed + 1), args.state, "render", caution=caution,
                                               renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
-                                              error_correlation=args.error_correlation, only=att)  # fmt: skip
+                                              error_correlation=args.error_correlation, only=att,
+                                              vary=args.vary)  # fmt: skip
                     finally:
                         renderer.close()
                         pipeline.backend.close()

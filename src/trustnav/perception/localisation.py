@@ -24,8 +24,10 @@ pixels for five unknowns:
 
 The fit's covariance (Gauss-Newton, (J' W J + priors)^-1) is the estimate's uncertainty: pixel
 noise (a share of the person's pixel height, plus a floor), the spread of the body ratios, the
-stature prior, the pitch and the feet. It grows by the fit's reduced chi^2 when above 1 (a body
-stretched or squashed). The position's marginal 2x2 block is returned in world coordinates.
+stature prior, the pitch and the feet. The pixels' noise grows by the fit's reduced chi^2 when
+above 1 (a body stretched or squashed, a walker's limbs off the centre line); the priors do not
+(before 26 Nov the whole covariance grew, the stature prior with it, and a walker's range region
+was too wide: issue 34). The position's marginal 2x2 block is returned in world coordinates.
 Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
 """
 
@@ -41,7 +43,15 @@ from numpy.typing import ArrayLike, NDArray
 from trustnav.geometry.camera import CameraPose
 from trustnav.perception.types import Person
 
-__all__ = ["BODY_POINTS", "FixedCameraGround", "GroundEstimate", "GroundLocaliser", "LocaliserConfig", "chi2_90"]
+__all__ = [
+    "BODY_POINTS",
+    "FixedCameraGround",
+    "GroundEstimate",
+    "GroundLocaliser",
+    "LocaliserConfig",
+    "chi2_90",
+    "pose_change",
+]
 
 #: The body's centre-line points: (name, COCO joints, height above the soles / stature where the
 #: detector reports them (true joint + the detector's median upward bias), spread of that ratio
@@ -108,7 +118,10 @@ class GroundEstimate:
     """A person placed on the ground: ``position`` (x, y) in the world (m), its ``covariance``
     (2 x 2, m^2), the ``distance`` from the camera over the ground (m), the fitted ``stature``
     (m), the camera's pitch offset (rad), the body points used and the fit's reduced chi^2
-    (~1 or below for a body that fits the model; the covariance is scaled by it when above 1)."""
+    (~1 or below for a body that fits the model; the pixels' noise is scaled by it when above 1);
+    ``shape``: the limbs' image positions (elbows, wrists, knees, ankles; (8, 2)) about the
+    shoulders' and hips' centre in shares of the body's image height (NaN where not seen): how
+    the pose looks, for :func:`pose_change` between frames (None: not known)."""
 
     position: NDArray[np.float64]
     covariance: NDArray[np.float64]
@@ -117,6 +130,7 @@ class GroundEstimate:
     pitch_offset: float
     points: int
     fit: float = math.nan
+    shape: NDArray[np.float64] | None = None
 
     def relative_to(self, camera: CameraPose) -> tuple[float, float]:
         """(ahead, left) of the camera over the ground (m): along its heading and to its left."""
@@ -142,6 +156,34 @@ class GroundEstimate:
 
 
 GroundHeight = Callable[[NDArray[np.float64]], float]
+
+#: COCO limbs whose image positions make a pose's :attr:`GroundEstimate.shape`.
+_LIMBS = (7, 8, 9, 10, 13, 14, 15, 16)
+
+
+def pose_change(a: NDArray[np.float64] | None, b: NDArray[np.float64] | None) -> float:
+    """How far apart two frames' poses are: the rms distance of the limbs both show (shares of the
+    body's image height; :attr:`GroundEstimate.shape`); NaN when either is unknown or they share
+    fewer than 3 limbs. A person standing still sways by ~0.01 of their height and the detector
+    jitters by about as much; a walker's legs and arms move by ~0.1 in a tenth of a second."""
+    if a is None or b is None:
+        return math.nan
+    d = np.sum((a - b) ** 2, axis=1)
+    d = d[np.isfinite(d)]
+    return float(math.sqrt(np.mean(d))) if d.size >= 3 else math.nan
+
+
+def _shape(person: Person, size_px: float, min_confidence: float) -> NDArray[np.float64] | None:
+    kp, conf = person.keypoints, person.confidences
+    core = [j for j in (5, 6, 11, 12) if conf[j] >= min_confidence and np.all(np.isfinite(kp[j]))]
+    if len(core) < 2 or not size_px > 0:
+        return None
+    centre = kp[core].mean(axis=0)
+    out = np.full((len(_LIMBS), 2), np.nan)
+    for i, j in enumerate(_LIMBS):
+        if conf[j] >= min_confidence and np.all(np.isfinite(kp[j])):
+            out[i] = (kp[j] - centre) / size_px
+    return out
 
 
 def _flat(_: NDArray[np.float64]) -> float:
@@ -260,10 +302,11 @@ class GroundLocaliser:
         if pred is None:
             return None
         # a body that does not fit the model (a detection stretched or squashed) is not believed
-        # more than its residuals allow: the covariance grows by the reduced chi^2 when above 1
+        # more than its residuals allow: the pixels' noise grows by the reduced chi^2 when above 1;
+        # the priors (people's stature, the pitch, the feet) are not the pixels' and keep their width
         fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
         try:
-            cov = np.linalg.inv(jac.T @ (w[:, None] * jac) + np.diag(prior_w)) * max(1.0, fit)
+            cov = np.linalg.inv(jac.T @ ((w / max(1.0, fit))[:, None] * jac) + np.diag(prior_w))
         except np.linalg.LinAlgError:
             return None
         pos = theta[:2].copy()
@@ -272,7 +315,8 @@ class GroundLocaliser:
         if not (np.all(np.isfinite(cov)) and ahead > 0.3 and dist <= cfg.max_distance):
             return None
         c2 = 0.5 * (cov[:2, :2] + cov[:2, :2].T) + cfg.body_sigma**2 * np.eye(2)
-        return GroundEstimate(pos, c2, dist, float(theta[2]), float(theta[3]), n_u, fit)
+        shape = _shape(person, size_px, cfg.min_confidence)
+        return GroundEstimate(pos, c2, dist, float(theta[2]), float(theta[3]), n_u, fit, shape)
 
     @staticmethod
     def _model(

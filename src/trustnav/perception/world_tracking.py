@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.geometry.camera import CameraPose
-from trustnav.perception.localisation import GroundEstimate
+from trustnav.perception.localisation import GroundEstimate, pose_change
 from trustnav.perception.types import box_iou
 
 __all__ = ["TrackState", "WorldTrack", "WorldTracker", "WorldTrackerConfig"]
@@ -71,7 +71,12 @@ class WorldTrackerConfig:
     error_correlation_s, and a frame that follows the track's previous one by dt < error_correlation_s
     is folded in with its covariance times the variance inflation factor of such errors
     (:func:`correlated_error_factor`; 1 s and 1: the frames of one second count as one independent
-    placement); error_correlation_s or error_shared 0: every frame independent. out_of_view_max_sigma: the
+    placement); error_correlation_s or error_shared 0: every frame independent. pose_change: the
+    errors repeat only while the pose does (the detector's bias is that of the image it sees): a
+    frame whose limbs moved by d (:func:`~trustnav.perception.localisation.pose_change`, shares of
+    the body's height) since the track's previous one shares exp(-(d / pose_change)^2 / 2) of
+    error_shared (a walker's stride renews the errors, a standing person's sway does not); 0: the
+    pose is not looked at. out_of_view_max_sigma: the
     position sigma (m) beyond which a track beside or behind the camera's horizontal view, walking
     away from its axis, is dropped (one cut off in front of the camera, or walking toward the car's
     path, is kept: the car may drive into them): where the camera
@@ -93,6 +98,7 @@ class WorldTrackerConfig:
     max_sigma: float = 4.0
     error_correlation_s: float = 1.0
     error_shared: float = 1.0
+    pose_change: float = 0.0
     out_of_view_max_sigma: float = 1.5
 
     def __post_init__(self) -> None:
@@ -112,6 +118,7 @@ class WorldTrackerConfig:
             ("out_of_view_max_sigma", 0.01, 1e3),
             ("error_correlation_s", 0.0, 60.0),
             ("error_shared", 0.0, 1.0),
+            ("pose_change", 0.0, 1.0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
@@ -158,6 +165,7 @@ class WorldTrack:
     hits: int = 1
     last_seen: float = 0.0
     box: NDArray[np.float64] | None = None
+    shape: NDArray[np.float64] | None = None  # the pose of its last frame (GroundEstimate.shape)
     confirmed: bool = False
     history: list[tuple[float, NDArray[np.float64]]] = field(default_factory=list, repr=False)
 
@@ -240,6 +248,17 @@ def correlated_error_factor(dt: float, correlation_s: float, shared: float = 1.0
         return 1.0
     k = math.ceil(correlation_s / dt - 1e-9) - 1  # lags k dt < correlation_s
     return 1.0 + 2.0 * shared * (k - dt / correlation_s * k * (k + 1) / 2.0)
+
+
+def _shared(t: WorldTrack, e: GroundEstimate, cfg: WorldTrackerConfig) -> float:
+    """The share of ``e``'s error that repeats the track's previous frame's: ``error_shared``, less
+    as far as the pose changed since (``pose_change``; unknown poses: all of it)."""
+    if cfg.pose_change <= 0.0:
+        return cfg.error_shared
+    d = pose_change(t.shape, e.shape)
+    if not math.isfinite(d):
+        return cfg.error_shared
+    return cfg.error_shared * math.exp(-0.5 * (d / cfg.pose_change) ** 2)
 
 
 class WorldTracker:
@@ -339,13 +358,14 @@ class WorldTracker:
                     t.means[1], t.covariances[1] = started[a]
                 elif dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
-                alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, cfg.error_shared)
+                alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, _shared(t, e, cfg))
                 if alike > 1.0:  # a frame soon after the last: its error is mostly that frame's again
                     e = replace(e, covariance=e.covariance * alike)
                 self._correct(t, e)
                 t.hits += 1
                 t.last_seen = float(time)
                 t.box = None if boxes is None or boxes[i] is None else np.asarray(boxes[i], dtype=float)
+                t.shape = e.shape
                 t.confirmed = t.confirmed or t.hits >= cfg.confirm_hits
                 ids[i] = t.track_id
                 taken_t.add(a)
@@ -433,6 +453,7 @@ class WorldTracker:
             probabilities=np.array([cfg.initial_standing, 1.0 - cfg.initial_standing]),
             last_seen=float(time),
             box=None if box is None else np.asarray(box, dtype=float),
+            shape=e.shape,
             confirmed=cfg.confirm_hits <= 1,
         )
         t.history.append((float(time), t.mean.copy()))

@@ -241,6 +241,15 @@ RENDER_ERROR_CORRELATION_S = 2.2
 RENDER_ERROR_SHARED = 0.66
 KEYPOINT_ERROR_CORRELATION_S = 0.1
 KEYPOINT_ERROR_SHARED = 1.0
+# ... but only while the pose repeats (issue 34 item 4): on rendered frames at 10 frames/s Case II's
+# walker (a gait: her limbs move by 0.025-0.068 of her height between frames, median 0.049) has
+# errors that correlate by -0.14 one frame apart, where standing and texting people (0.005-0.02,
+# median 0.008-0.012) repeat theirs by 0.5-0.69, and by 0.50-0.67 one second apart at 1 frame/s
+# (their sway over a second: median 0.022). A repeated share that fades as exp(-(d / 0.03)^2 / 2)
+# with the limbs' move d keeps 0.92-0.95 of it at 10 frames/s, 0.76 over a second of sway and 0.26
+# of a stride (WorldTrackerConfig.pose_change). Keypoint sensing has no repeated errors: 0.
+RENDER_POSE_CHANGE = 0.03
+KEYPOINT_POSE_CHANGE = 0.0
 
 
 @dataclass(frozen=True)
@@ -270,6 +279,9 @@ class SensingSpec:
     :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 2.2 s and
     0.66 for rendered frames (measured), 0.1 s and 1 for keypoint sensing, whose errors are drawn
     anew in each frame),
+    ``pose_change`` (a share of the body's height: the errors repeat only while the pose does; a
+    frame whose limbs moved by d since the person's last keeps exp(-(d / pose_change)^2 / 2) of
+    ``error_shared``; default by sensing: 0.03 for rendered frames, 0, not looked at, for keypoints),
     ``track_keep`` (s a track lives unseen
     where the camera should see it; out of view beside the
     car it lives longer, see :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`).
@@ -302,6 +314,9 @@ class SensingSpec:
     error_shared: Annotated[
         float | None, Maybe(Number(0, 1), "by sensing: 0.66 for rendered frames, 1 for keypoints")
     ] = None
+    pose_change: Annotated[
+        float | None, Maybe(Number(0, 1), "by sensing: 0.03 for rendered frames, 0 for keypoints")
+    ] = None
     track_keep: float = 2.5
     perception_latency: Annotated[float, Number(0, MAX_PERCEPTION_LATENCY, unit=" s")] = 0.0
 
@@ -328,13 +343,19 @@ class SensingSpec:
         ``error_correlation_s`` and ``error_shared`` are :data:`KEYPOINT_ERROR_CORRELATION_S` and
         :data:`KEYPOINT_ERROR_SHARED`; rendered frames: :data:`RENDER_ERROR_CORRELATION_S`,
         :data:`RENDER_ERROR_SHARED`)."""
-        tau, shared = self.error_correlation_s, self.error_shared
+        tau, shared, pose = self.error_correlation_s, self.error_shared, self.pose_change
         if tau is None:
             tau = KEYPOINT_ERROR_CORRELATION_S if keypoints else RENDER_ERROR_CORRELATION_S
         if shared is None:
             shared = KEYPOINT_ERROR_SHARED if keypoints else RENDER_ERROR_SHARED
+        if pose is None:
+            pose = KEYPOINT_POSE_CHANGE if keypoints else RENDER_POSE_CHANGE
         return WorldTrackerConfig(
-            accel_psd=self.accel_psd, keep_seconds=self.track_keep, error_correlation_s=tau, error_shared=shared
+            accel_psd=self.accel_psd,
+            keep_seconds=self.track_keep,
+            error_correlation_s=tau,
+            error_shared=shared,
+            pose_change=pose,
         )
 
 
