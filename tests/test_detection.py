@@ -156,3 +156,53 @@ def test_a_refollowed_fit_does_not_hide_a_fast_walker_from_the_detector(sequence
     woman = np.array([420.0, 155.0, 476.0, 302.0])  # her label in frame 5, moved by the shift
     assert [box_iou(p.bbox, woman) >= 0.5 for p in last].count(True) == 1
     assert all(p.bbox[2] - p.bbox[0] < 0.6 * (p.bbox[3] - p.bbox[1]) for p in last)
+
+
+class _FakeGraphs:
+    """Landmark fits without the model: every region gives a fit whose suggested next region is
+    ``suggested``; ``_accepted`` as the real graphs' (fit, then the check)."""
+
+    def __init__(self, suggested):
+        self.suggested = np.asarray(suggested, dtype=float)
+        self.fitted = []
+
+    def landmarks(self, frame, roi):
+        self.fitted.append(np.asarray(roi, dtype=float))
+        return np.zeros((33, 5)), self.suggested, np.asarray(roi, dtype=float)
+
+    def _accepted(self, frame, roi, accept):
+        lm, nxt, used = self.landmarks(frame, roi)
+        person = accept(lm, used)
+        return None if person is None else (lm, nxt, used, person)
+
+
+@pytest.mark.parametrize("fit_box", [[110.0, 60.0, 170.0, 300.0], [400.0, 60.0, 460.0, 300.0]])
+def test_a_box_whose_fits_are_all_rejected_is_refitted_once_on_the_suggested_region(fit_box):
+    """``_confirm``: when every fit on a detector box is turned down, ``refit=True`` (offline) tries
+    one more on the region the first rejected fit suggests; a fit there that overlaps the box (IoU >=
+    0.3) confirms it, with the fit's own extent as the box (the detector's took in two people); one
+    on somebody else (no overlap) does not. Without ``refit`` (real time) no extra fit is made."""
+    from trustnav.perception.mediapipe_backend import MediaPipePoseBackend, box_region
+
+    box = np.array([100.0, 50.0, 260.0, 310.0])  # a box on two people
+    suggested = np.array([140.0, 180.0, 300.0, 0.0, np.nan, np.nan, np.nan])
+    backend = object.__new__(MediaPipePoseBackend)
+
+    def person(lm, score, w, h, roi):  # only the fit on the suggested region passes the checks
+        if not np.allclose(roi[:4], suggested[:4]):
+            return None
+        return Person(bbox=np.array(fit_box), keypoints=np.zeros((17, 2)), confidences=np.ones(17), score=score)
+
+    backend._person = person
+    rois = box_region(box)[None, :]
+    g = _FakeGraphs(suggested)
+    assert backend._confirm(g, None, rois, 0.8, box, 640, 480) is None
+    assert len(g.fitted) == 2  # the box's square and the tighter square, no more
+    g = _FakeGraphs(suggested)
+    out = backend._confirm(g, None, rois, 0.8, box, 640, 480, refit=True)
+    assert len(g.fitted) == 3 and np.allclose(g.fitted[-1], suggested, equal_nan=True)
+    if box_iou(np.array(fit_box), box) >= 0.3:
+        assert out is not None and out[3].extra["refit"]
+        assert np.allclose(out[3].bbox, fit_box)
+    else:
+        assert out is None
