@@ -454,9 +454,6 @@ class MediaPipePoseBackend:
         hips = lm[[23, 24], :2].mean(axis=0)
         if math.hypot(*(hips - roi[:2])) > self.config.max_hip_offset * roi[2]:
             return None
-        # a region from the detector also says where the face is: the nose must be there
-        if np.isfinite(roi[4]) and math.hypot(*(lm[0, :2] - roi[4:6])) > roi[6]:
-            return None
         if self.config.upright_check and not is_upright(lm, self.config.max_torso_tilt_deg):
             return None
         pts = lm[:, :2]
