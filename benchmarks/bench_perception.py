@@ -3,8 +3,7 @@
 Runs the full pipeline (MediaPipe backend, eye contact + phone traits, OC-SORT tracking) on the
 640x480 sequences (walk_a, phone_a) in video mode, and on the street images (still mode), and
 prints a Markdown table: frames, people per frame, median milliseconds per stage (detection,
-landmarks, traits, tracking) and overall frames per second. ``--scan-frames N`` shares the tiled
-search over N frames of a video (people already found are followed from their landmarks).
+landmarks, traits, tracking) and overall frames per second.
 
     python benchmarks/bench_perception.py                  # both modes on the sequences
     python benchmarks/bench_perception.py --json out.json
@@ -23,8 +22,7 @@ frame finding nobody), ``false_boxes`` and ``duplicates`` there (the labelled ev
 >= 80 px to the real-time run's, over people followed >= 0.5 s; one never found counts to the end),
 ``recall_vs_offline``, ``traits_hz_median`` (median over tracks followed >= 1 s of the rate at which
 the track's traits were judged afresh, not carried) and ``load`` (1-minute load average during the
-run). ``--baseline`` adds the offline row of the proposer before issue 35 (BlazePose's tiles) in the
-same run, so speeds compare as ratios; ``--repeat N`` streams
+run). ``--repeat N`` streams
 N times; ``--config SPEC ...`` streams several real-time settings in turn (``default`` or
 RealtimeConfig fields, ``max_fits=2,pipelined=0``: a row each, ``config`` naming it).
 ``recall_every_frame``, ``first_detection_every_frame_s`` and ``traits_hz_every_frame`` are the same
@@ -60,13 +58,11 @@ def run(
     name: str,
     paths: list[Path],
     video: bool,
-    scan_frames: int,
     workers: int,
     model: LookingModel,
-    proposer: str = "detector",
 ) -> dict:
     frames = [f.frame for f in iter_frames(paths) if f.frame is not None]
-    config = MediaPipeConfig(scan_frames=scan_frames, workers=workers, proposer=proposer)
+    config = MediaPipeConfig(workers=workers)
     backend = MediaPipePoseBackend(config, video=video)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=10.0), model)
     pipeline(frames[0])  # warm-up (graph start-up), then start again
@@ -85,10 +81,8 @@ def run(
     h, w = frames[0].shape[:2]
     return {
         "input": name,
-        "proposer": proposer,
         "size": f"{w}x{h}",
         "mode": "video" if video else "still",
-        "scan_frames": scan_frames,
         "frames": len(frames),
         "people_per_frame": float(np.mean(people)),
         **{f"{k}_ms": 1e3 * float(np.median(v)) for k, v in stages.items()},
@@ -116,11 +110,10 @@ def run_reference(
     frames: list,
     fps: float,
     model: LookingModel,
-    proposer: str = "detector",
     realtime: bool = False,
     config: dict | None = None,
 ) -> tuple[list[list[dict]], float]:
-    """Every frame through the offline pipeline (``proposer``; or, ``realtime``, the real-time backend
+    """Every frame through the offline pipeline (or, ``realtime``, the real-time backend
     handed the frames as fast as it takes them: its throughput); per frame its people, and the
     frames per second."""
     if realtime:
@@ -128,7 +121,7 @@ def run_reference(
 
         backend: MediaPipePoseBackend = RealtimePoseBackend(realtime=RealtimeConfig(**(config or {})))
     else:
-        backend = MediaPipePoseBackend(MediaPipeConfig(proposer=proposer), video=True)
+        backend = MediaPipePoseBackend(video=True)
     pipeline = PerceptionPipeline(backend, PersonTracker(fps=fps), model)
     pipeline(frames[0])  # warm-up, then start again
     backend.reset()
@@ -201,7 +194,7 @@ def compare(
 
 
 #: Box height (px) from which a person counts as clearly visible (``recall_clear``): the size from
-#: which the labelled evaluation (trust_eval.py) counts people and both proposers work.
+#: which the labelled evaluation (trust_eval.py) counts people.
 CLEAR_PX = 80.0
 
 
@@ -287,15 +280,9 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
     load0 = os.getloadavg()[0]
     reference, ref_fps = run_reference(walk, fps, model)
     load = round((load0 + os.getloadavg()[0]) / 2, 2)
-    rows.append({"name": "walk_a", "mode": "offline", "proposer": "detector", "fps": ref_fps,
+    rows.append({"name": "walk_a", "mode": "offline", "fps": ref_fps,
                  **labelled_scores(reference, names), "traits_hz_median": traits_hz(reference, fps),
                  "load": load})  # fmt: skip
-    if args.baseline:  # the proposers before issue 35, in the same run: speeds as ratios
-        load0 = os.getloadavg()[0]
-        base, base_fps = run_reference(walk, fps, model, proposer="blazepose")
-        rows.append({"name": "walk_a", "mode": "offline", "proposer": "blazepose", "fps": base_fps,
-                     **labelled_scores(base, names), "traits_hz_median": traits_hz(base, fps),
-                     "load": round((load0 + os.getloadavg()[0]) / 2, 2)})  # fmt: skip
     for _, (label, config) in itertools.product(range(args.repeat), args.config):
         load0 = os.getloadavg()[0]
         every, throughput = run_reference(walk, fps, model, realtime=True, config=config)  # every frame
@@ -313,7 +300,7 @@ def realtime_main(args: argparse.Namespace, model: LookingModel) -> None:
                      "recall_every_frame": design["recall_labelled"],
                      "first_detection_every_frame_s": first_every,
                      "traits_hz_every_frame": traits_hz(every, fps)})  # fmt: skip
-    cols = ["name", "mode", "proposer", "config", "stream_fps", "fps", "throughput_fps", "dropped", "latency_ms_p95",
+    cols = ["name", "mode", "config", "stream_fps", "fps", "throughput_fps", "dropped", "latency_ms_p95",
             "recall_labelled", "labelled_people", "false_boxes", "duplicates", "first_detection_s",
             "recall_vs_offline", "traits_hz_median", "load", "load_throughput", "recall_every_frame",
             "first_detection_every_frame_s", "traits_hz_every_frame"]  # fmt: skip
@@ -352,17 +339,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime", action="store_true", help="reference vs real-time mode (issue 20 rows)")
     ap.add_argument("--stream-fps", type=float, default=15.0, help="--realtime: the stream's frame rate")
-    ap.add_argument("--baseline", action="store_true",
-                    help="--realtime: also the offline row with the proposer before issue 35 (BlazePose's "
-                    "tiles), in the same run")  # fmt: skip
     ap.add_argument("--repeat", type=int, default=1, help="--realtime: streamed runs (the spread of the timings)")
     ap.add_argument("--config", nargs="+", type=realtime_config, default=[realtime_config("default")],
                     metavar="SPEC", help="--realtime: the real-time backends streamed, in turn, each 'default' "
                     "or RealtimeConfig fields as 'max_fits=2,pipelined=0' (ratios in one run)")  # fmt: skip
-    ap.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
-                    help="who proposes people (MediaPipeConfig.proposer); --scan-frames applies to blazepose "
-                    "only")  # fmt: skip
-    ap.add_argument("--scan-frames", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-street", action="store_true", help="sequences only")
     ap.add_argument("--json", help="write the rows to this file")
@@ -376,17 +356,15 @@ def main() -> None:
         realtime_main(args, model)
         return
     rows = []
-    scans = [1] if args.proposer == "detector" else args.scan_frames  # the scan belongs to the tiled search
-    for scan in scans:
-        for seq in ("walk_a", "phone_a"):
-            paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))
-            rows.append(run(seq, paths, True, scan, args.workers, model, args.proposer))
+    for seq in ("walk_a", "phone_a"):
+        paths = sorted((SHARED / "data" / "sequences" / seq).glob("*.png"))
+        rows.append(run(seq, paths, True, args.workers, model))
     if not args.skip_street:
         streets = sorted((SHARED / "data" / "street_images").glob("street_*.png"))
-        rows.append(run("street_*.png", streets, False, 1, args.workers, model, args.proposer))
+        rows.append(run("street_*.png", streets, False, args.workers, model))
         crossing = [SHARED / "data" / "street_images" / "crossing.jpg"] * 3
-        rows.append(run("crossing.jpg", crossing, False, 1, args.workers, model, args.proposer))
-    cols = ["input", "proposer", "size", "mode", "scan_frames", "frames", "people_per_frame", "detection_ms",
+        rows.append(run("crossing.jpg", crossing, False, args.workers, model))
+    cols = ["input", "size", "mode", "frames", "people_per_frame", "detection_ms",
             "landmarks_ms", "traits_ms", "tracking_ms", "total_ms", "fps"]  # fmt: skip
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))

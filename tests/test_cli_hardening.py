@@ -443,7 +443,6 @@ def test_interrupted_overwrite_keeps_the_earlier_outputs_and_the_new_records_bes
      (["drive", "case-1", "--world", "carla", "--timeout", "1e6"], "--timeout must be in (0, 600] s, got 1e+06"),
      (["demo", "--seed", "-1"], "--seed must be an integer >= 0, got -1"),
      (["estimate", "IMG", "--fps", "1000"], "--fps must be in (0, 240] frames per second, got 1000"),
-     (["estimate", "IMG", "--scan-frames", "0"], "--scan-frames must be an integer in [1, 100], got 0"),
      (["sweep", "SPEC", "--workers", "0"], "--workers must be an integer in [1, 256], got 0"),
      (["sweep", "SPEC", "--batch", "100001"], "--batch must be an integer in [1, 10000], got 100001")],
 )  # fmt: skip
@@ -460,20 +459,31 @@ def test_numbers_out_of_range_are_one_line_naming_the_option(tmp_path, scripted,
     assert not out.exists() and not _partials(tmp_path)  # refused before anything was written
 
 
-def test_the_retired_body_search_option_is_one_line_saying_so(tmp_path, capsys):
-    """Issue 35 retired the HOG body-shape search: ``--no-body-search`` is refused by name with the
-    reason, not ignored, before anything is written, and it is not in --help."""
+@pytest.mark.parametrize(
+    ("option", "why"),
+    [
+        ("--no-body-search", "the HOG body-shape search"),
+        ("--proposer", "BlazePose's tiled person search"),
+        ("--scan-frames", "it shared out BlazePose's tiled search"),
+        ("--sharpen", "it sharpened the frame for BlazePose's tiled search"),
+    ],
+)
+def test_a_retired_option_is_one_line_saying_so(tmp_path, capsys, option, why):
+    """Issue 35 retired the HOG body-shape search and BlazePose's tiled search: their options are
+    refused by name with the reason, not ignored, with or without a value, before anything is
+    written, and they are not in --help."""
     img, out = _image(tmp_path / "a.png"), tmp_path / "o"
-    with pytest.raises(SystemExit) as exit_:
-        main(["estimate", str(img), "--out", str(out), "--no-body-search"])
-    assert exit_.value.code == 2
-    err = capsys.readouterr().err
-    _one_clean_line(err)
-    assert err.startswith("trustnav estimate: error: --no-body-search was removed: the HOG body-shape search")
-    assert "issue 35" in err and not out.exists()
+    for value in ([], ["2"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(["estimate", str(img), "--out", str(out), option, *value])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        _one_clean_line(err)
+        assert err.startswith(f"trustnav estimate: error: {option} was removed: {why}")
+        assert "issue 35" in err and not out.exists()
     with pytest.raises(SystemExit):
         main(["estimate", "--help"])
-    assert "--no-body-search" not in capsys.readouterr().out
+    assert option not in capsys.readouterr().out
 
 
 def test_every_number_option_documents_its_range(capsys):

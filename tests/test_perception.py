@@ -361,46 +361,21 @@ def test_missing_optional_backend_says_what_to_install(monkeypatch):
         make_backend("nope")
 
 
-# -- configuration and tiling ----------------------------------------------------------------------
+# -- configuration ----------------------------------------------------------------------------
 
 
 def test_configs_refuse_bad_values_by_name():
     from trustnav.perception.mediapipe_backend import MediaPipeConfig
     from trustnav.perception.tracking import TrackerConfig
 
-    with pytest.raises(ValueError, match="tile_fractions"):
-        MediaPipeConfig(tile_fractions=(1.5,))
-    with pytest.raises(ValueError, match="head_band"):
-        MediaPipeConfig(head_band=(0.7, 0.2))
-    with pytest.raises(ValueError, match="scan_frames"):
-        MediaPipeConfig(scan_frames=0)
+    with pytest.raises(ValueError, match="region_scale"):
+        MediaPipeConfig(region_scale=3.0)
+    with pytest.raises(ValueError, match="workers"):
+        MediaPipeConfig(workers=0)
     with pytest.raises(ValueError, match="algorithm"):
         TrackerConfig(algorithm="deepsort")
     with pytest.raises(ValueError, match="lost_seconds"):
         TrackerConfig(lost_seconds=-1.0)
-
-
-@settings(max_examples=60, deadline=None)
-@given(st.integers(16, 3000), st.integers(16, 3000), st.floats(0.0, 0.8))
-def test_tiles_stay_in_the_frame_and_cover_it_at_every_scale(h, w, overlap):
-    from trustnav.perception.mediapipe_backend import MediaPipeConfig, tiles
-
-    cfg = MediaPipeConfig(tile_overlap=overlap, head_band=None)
-    wins = tiles(h, w, cfg)
-    assert wins[0] == (0, 0, w, h) and len(set(wins)) == len(wins)
-    for x0, y0, x1, y1 in wins:
-        assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
-    for frac in cfg.tile_fractions:
-        side = round(frac * min(h, w))
-        if side < cfg.min_tile_px:
-            continue
-        level = [t for t in wins if t[2] - t[0] == side and t[3] - t[1] == side]
-        covered = np.zeros((h, w), dtype=bool)
-        for x0, y0, x1, y1 in level:
-            covered[y0:y1, x0:x1] = True
-        assert covered.all()
-    banded = tiles(h, w, MediaPipeConfig(tile_overlap=overlap))
-    assert set(banded) <= set(wins)  # the head band only removes small tiles
 
 
 # -- pipeline without a camera: observations reach the trust estimator only when seen --------------

@@ -18,8 +18,6 @@ BOUNDS: dict[str, Number | Integer] = {
     "rate": Number(0, 60, lo_open=True, unit=" frames per second"),
     "control_rate": Number(1, 200, unit=" steps per second"),
     "fps": Number(0, 240, lo_open=True, unit=" frames per second"),
-    "scan_frames": Integer(1, 100, whole_floats=True),
-    "sharpen": Number(0, 3),
     "max_frames": Integer(1, whole_floats=True),
     "max_seconds": Number(0, lo_open=True, unit=" s"),
     "open_timeout": Number(0, 600, lo_open=True, unit=" s"),

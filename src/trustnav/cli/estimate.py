@@ -17,6 +17,11 @@ ESTIMATE_OUTPUTS = ("frames", "annotated*.mp4", "tracks.csv", "tracks.json", "re
 REMOVED_OPTIONS = {
     "--no-body-search": "the HOG body-shape search it skipped was retired in issue 35 (the YOLOX-Nano person "
     "detector, the default, finds the people it found on the labelled sets)",
+    "--proposer": "BlazePose's tiled person search was retired in issue 35; people are proposed by the YOLOX-Nano "
+    "person detector (choose its file with --detector-model FILE)",
+    "--scan-frames": "it shared out BlazePose's tiled search, retired in issue 35; for a faster run use --realtime",
+    "--sharpen": "it sharpened the frame for BlazePose's tiled search, retired in issue 35; the YOLOX-Nano "
+    "person detector needs no sharpening",
 }
 
 
@@ -36,18 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--fps", type=float, default=10.0,
                    help=f"rate of image sequences, {span('fps')} (default 10; videos: their own)")  # fmt: skip
     e.add_argument("--backend", choices=["mediapipe", "openpifpaf", "yolo"], default="mediapipe")
-    e.add_argument(
-        "--scan-frames",
-        type=int,
-        default=1,
-        help=f"mediapipe: share the tiled search over N frames, {span('scan_frames')} (faster, fewer found)",
-    )
     e.add_argument("--realtime", action="store_true",
                    help="real-time perception (same as --perception realtime): the detector on every frame, "
                    "landmarks refitted a few times a second and carried between (docs/perception.md)")  # fmt: skip
-    e.add_argument("--proposer", choices=["detector", "blazepose"], default="detector",
-                   help="mediapipe: who proposes people: the YOLOX-Nano person detector (default) or, as before, "
-                   "BlazePose's pose detector over tiles")  # fmt: skip
     e.add_argument("--detector-model", metavar="FILE",
                    help="the YOLOX-Nano ONNX file (default: ../shared/models/yolox/ of a checkout, "
                    "$TRUSTNAV_YOLOX_MODEL, the user cache, else downloaded once; a FILE given is never "
@@ -56,13 +52,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="offline (default for files): every box of every frame fitted; realtime (= --realtime, "
                    "the default for live input): the detector on every frame, landmarks staggered "
                    "(docs/perception.md)")  # fmt: skip
-    e.add_argument(
-        "--sharpen",
-        type=float,
-        default=0.0,
-        help=f"mediapipe: unsharp mask for the person search, {span('sharpen')} (default 0, off); 0.7 finds "
-        "more people on soft or compressed video (MP4 at ~36 dB)",
-    )
     e.add_argument("--max-frames", type=int, help=f"stop after N frames, {span('max_frames')} (any input)")
     e.add_argument("--max-seconds", type=float,
                    help=f"live input: stop after S seconds, {span('max_seconds')} (default: when the stream ends "
@@ -113,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     from trustnav.viz.report import estimate_summary
 
     # everything that can be refused is refused before the output folder is touched
-    check_bounds(args, "fps", "scan_frames", "sharpen", "camera_height", "fov", "pitch")
+    check_bounds(args, "fps", "camera_height", "fov", "pitch")
     ground = None
     if args.camera_height is not None:
         ground = FixedCameraGround(args.camera_height, 70.0 if args.fov is None else args.fov, args.pitch or 0.0)
@@ -127,17 +116,13 @@ def run(args: argparse.Namespace) -> int:
         args.perception = "realtime"
     elif args.perception is None:  # live input runs in real time unless --perception offline is given
         live = any(is_live_source(str(i)) for i in args.inputs)
-        mediapipe = args.backend == "mediapipe" and args.proposer == "detector"
-        args.perception = "realtime" if live and mediapipe else "offline"
-    if args.perception == "realtime" and (args.backend != "mediapipe" or args.proposer != "detector"):
-        raise ValueError("--realtime runs on the mediapipe backend with the detector as proposer")
-    legacy = args.sharpen or args.scan_frames != 1
-    if legacy and (args.backend != "mediapipe" or args.proposer != "blazepose"):
-        raise ValueError("--sharpen and --scan-frames apply to --proposer blazepose (mediapipe) only")
-    if args.backend == "mediapipe" and args.proposer == "detector":
+        args.perception = "realtime" if live and args.backend == "mediapipe" else "offline"
+    if args.perception == "realtime" and args.backend != "mediapipe":
+        raise ValueError("--realtime runs on the mediapipe backend")
+    if args.backend == "mediapipe":
         args.detector_model = str(resolve_model(args.detector_model))  # a missing file: refused here
     elif args.detector_model is not None:
-        raise ValueError("--detector-model applies to --proposer detector (mediapipe backend) only")
+        raise ValueError("--detector-model applies to the mediapipe backend only")
     sequences = plan_sequences(args.inputs, one_sequence=args.one_sequence)
     eye = LookingModel.from_file(args.looking_weights)
     face = None
@@ -153,10 +138,8 @@ def run(args: argparse.Namespace) -> int:
         live_source = LiveSource(sequences[0].source, open_timeout=args.open_timeout, read_timeout=args.open_timeout)
     # written beside --out, moved into place at the end (removed if the run fails); the live source closed in any case
     with folder, contextlib.closing(live_source) if live_source is not None else contextlib.nullcontext():
-        mediapipe = {"scan_frames": args.scan_frames, "sharpen": args.sharpen, "proposer": args.proposer,
-                     "detector_model": args.detector_model}  # fmt: skip
-        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime",
-                               **(mediapipe if args.backend == "mediapipe" else {}))  # fmt: skip
+        mediapipe = {"detector_model": args.detector_model} if args.backend == "mediapipe" else {}
+        backend = make_backend(args.backend, video=True, realtime=args.perception == "realtime", **mediapipe)
         extra = (() if face is None else FACE_FIELDS) + (() if ground is None else ground.FIELDS)
         output = EstimateOutput(folder.path, sequences, args.mp4, extra, not args.no_images,
                                 hasattr(backend, "last_rejections"))  # fmt: skip

@@ -149,7 +149,7 @@ class RealtimePoseBackend(MediaPipePoseBackend):
     """
 
     def __init__(self, config: MediaPipeConfig | None = None, realtime: RealtimeConfig | None = None) -> None:
-        config = replace(config or MediaPipeConfig(), workers=2, proposer="detector")
+        config = replace(config or MediaPipeConfig(), workers=2)
         super().__init__(config, video=True)
         # mediapipe 0.10.14 warns on every graph call (protobuf's GetPrototype); with two workers a
         # scoped filter is not thread-safe, so this one message is ignored for the process
