@@ -117,6 +117,28 @@ def tracking(r) -> tuple[int, int, int]:  # type: ignore[no-untyped-def]
     return switches, seen, covered
 
 
+#: How slow (m/s) a car counts as stopped, and how far (deg) off its lane's heading it counts as turned.
+STOPPED, TURNED = 0.3, 10.0
+
+
+def stop_and_go(sc, r) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """The car's largest turn (deg) off its lane's heading while stopped, and its fastest speed (m/s)
+    while the crosser is ahead of it within R of the line it heads along, after it has stopped (a car
+    that restarts or creeps toward her: 0 if none)."""
+    lane = np.asarray(sc.goal, dtype=float) - np.asarray(sc.ego_start, dtype=float)
+    psi = float(np.arctan2(lane[1], lane[0]))
+    yaw, v = r.ego[:, 2], r.ego[:, 3]
+    off = np.degrees(np.abs((yaw - psi + np.pi) % (2 * np.pi) - np.pi))
+    stopped = v < STOPPED
+    turned = float(off[stopped].max()) if stopped.any() else 0.0
+    rel = r.pedestrians[:, 0, :] - r.ego[:, :2]
+    fwd = rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw)
+    side = np.abs(rel[:, 1] * np.cos(yaw) - rel[:, 0] * np.sin(yaw))
+    after = np.cumsum(stopped) > 0
+    toward = after & (fwd > 0) & (side < sc.control.safety_radius) & (v >= STOPPED)
+    return turned, float(v[toward].max()) if toward.any() else 0.0
+
+
 def brake_room(sc, r) -> tuple[float, float | None]:  # type: ignore[no-untyped-def]
     """The braking room (:func:`_room_from`) (a) from the moment she stepped out (the car knew at
     once) and (b) from the moment the camera could have shown it (:func:`shown_at`; None: never)."""
@@ -161,6 +183,7 @@ def main() -> None:
         room_a, room_b = brake_room(sc, r)
         shown = shown_at(sc, r)
         switches, seen, covered = tracking(r)
+        turned, toward = stop_and_go(sc, r)
         rows.append({
             "run": k, "attentive": sc.pedestrians[0].attentive, "ego_speed": round(sc.ego_speed, 2),
             "reached_goal": m["reached_goal"], "time_to_goal": m["time_to_goal"],
@@ -171,6 +194,7 @@ def main() -> None:
             "steps_out_s": round(sc.pedestrians[0].behaviour.start_time, 2),
             "shown_s": None if shown is None else round(shown, 2), "crosser_speed": sc.pedestrians[0].behaviour.speed,
             "id_switches": switches, "frames_observed": seen, "frames_covered": covered,
+            "stopped_turned_deg": round(turned, 1), "toward_her_mps": round(toward, 2),
         })  # fmt: skip
     off = [r for r in rows if r["road_departure_max"] > 0]
     inside = [r for r in rows if r["margin_violations"] > 0]
@@ -193,6 +217,11 @@ def main() -> None:
     print(f"  the crosser's track: {sum(r['id_switches'] for r in rows)} identity switches in "
           f"{sum(r['id_switches'] > 0 for r in rows)} runs; her 90 % region held her in "
           f"{sum(r['frames_covered'] for r in rows) / max(seen, 1):.3f} of {seen} frames observing her")  # fmt: skip
+    turned = [r for r in rows if r["stopped_turned_deg"] > TURNED]
+    toward = [r for r in rows if r["toward_her_mps"] > 0]
+    print(f"  stopped turned more than {TURNED:g} deg off the lane: {len(turned)} runs "
+          f"{[r['run'] for r in turned]}; moved toward her (ahead, within R of its heading line) after "
+          f"stopping: {len(toward)} runs {[(r['run'], r['toward_her_mps']) for r in toward]}")  # fmt: skip
     for r in off + inside + stuck:
         print("  ", json.dumps(r))
     if args.json:

@@ -142,6 +142,32 @@ def test_a_remembered_crosser_blocks_on_the_line_a_turned_car_heads_along():
     assert walk(math.radians(25.0)) == [False, False]  # turned away from her
 
 
+def test_a_seen_crosser_is_waited_for_until_clear_of_the_line_a_turned_car_heads_along():
+    """Issue 34 (held-out run 64): a car stopped turned toward where the crosser it waits for walks
+    restarted once there was room to pass behind her, and drove toward her. A crosser it yielded to,
+    still seen, now keeps it waiting while she is within her radius of the line it heads along, if
+    that line is turned toward where she walks; a car along the road, or turned away, passes behind
+    her as before, and one that never yielded to her is not held."""
+
+    def walk(heading, first=True):
+        y = Yielder(YieldConfig())
+
+        def step(t, ped):
+            return y.decide(np.zeros(2), 0.0, pedestrians=np.array([ped]), velocities=np.array([[0.0, -0.6]]),
+                            radii=np.array([3.5]), time=t, safety_radius=2.5, heading=heading, **ROAD)  # fmt: skip
+
+        if first:
+            assert step(0.0, (6.0, 0.5)) is not None  # she walks out in front of it: it yields
+        # at 4 s she is 1.9 m right of the road's line: room to pass behind her (left) at 3.5 m
+        return step(4.0, (6.0, -1.9)) is not None
+
+    assert not walk(0.0)  # along the road: released, as before
+    assert not walk(math.radians(25.0))  # turned away from her side
+    # turned 25 deg toward her side: she is 0.8 m from the line it heads along, 6.2 m ahead
+    assert walk(math.radians(-25.0))
+    assert not walk(math.radians(-25.0), first=False)  # not one it waited for: judged as usual
+
+
 def test_a_remembered_crosser_moves_across_the_road_only():
     """Issue 34 (10 frames/s, seed 0 run 49): her dropped track's velocity along the road was the
     monocular range's drift (0.41 m/s); remembered with it, her prediction and the car's stop moved

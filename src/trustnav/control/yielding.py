@@ -42,6 +42,13 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
+- **Released only clear of the line the car heads along** (with ``time`` and ``heading``): a crosser
+  it yielded to at the last step and still sees (within ``rematch`` of her remembered prediction)
+  keeps blocking, once the room test above would let the car pass behind her, while she is ahead
+  within her radius of the line the car heads along and that line is turned toward where she walks
+  (at her distance ahead, more than ``tolerance`` toward her side). A car that stopped turned
+  toward her side (the barrier bent it round her estimate) and went once there was room behind her
+  drove toward her first; a car along the road, or turned away, passes behind her as before.
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -147,6 +154,7 @@ class Yielder:
         # the line the car heads along (a car stopped turned toward where she walks drives it first)
         ahead = axis if heading is None else np.array([math.cos(heading), math.sin(heading)])
         extra = np.zeros(1)  # how much further short of her the stop lies (one remembered: her range error)
+        held = -1  # the pedestrian it yielded to at the last step, still seen (index into this step's)
         if remember and self._memory is not None:  # she vanished from the inputs? keep her prediction
             pos, vel, t0, along_sigma = self._memory
             pred = pos + vel * (float(time) - t0)
@@ -156,7 +164,10 @@ class Yielder:
             off_heading = abs(float(ahead[0] * rel[1] - ahead[1] * rel[0])) >= near
             gone = ((off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
                     or float(time) - t0 > c.memory)  # fmt: skip
-            seen = n_real > 0 and float(np.min(np.hypot(*(np.asarray(pedestrians) - pred).T))) <= c.rematch
+            dist = np.hypot(*(np.asarray(pedestrians, dtype=float).reshape(-1, 2) - pred).T) if n_real else None
+            seen = dist is not None and float(np.min(dist)) <= c.rematch
+            if seen and not float(time) - t0 > c.memory:
+                held = int(np.argmin(dist))  # still seen: released only once clear of the line it heads along
             if gone or seen:
                 self._memory = None
             else:
@@ -177,7 +188,7 @@ class Yielder:
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
             max(float(speed), 0.1), cov, float(z), n_real, d_lane, np.ascontiguousarray(position, dtype=float),
-            np.ascontiguousarray(ahead, dtype=float), extra,
+            np.ascontiguousarray(ahead, dtype=float), extra, held,
         )  # fmt: skip
         if remember and 0 <= j < n_real:
             # remembered as crossing: her velocity across the road only (along it, a frame's estimate
@@ -214,7 +225,7 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra, held):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
@@ -263,13 +274,19 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 near = (d - r < left) and (d + r > -right)
                 # one it no longer sees (j >= n_real) blocks within r of the lane's line: the MPC,
                 # not knowing her, would not steer round her
+                off = abs(ahead[0] * (peds[j, 1] + vy * ts[k] - car[1]) - ahead[1] * (peds[j, 0] + vx * ts[k] - car[0]))
                 if j >= n_real:
-                    off = abs(
-                        ahead[0] * (peds[j, 1] + vy * ts[k] - car[1]) - ahead[1] * (peds[j, 0] + vx * ts[k] - car[0])
-                    )
                     blocks = (abs(d - d_lane) < r or off < r) and sk > s_car
                 else:
                     blocks = near and sk > s_car and not room_left and not room_right
+                    if j == held and (walks_left or walks_right) and not blocks:
+                        # a crosser it waits for keeps it waiting while within r of the line it heads
+                        # along: a car stopped turned toward where she walks would drive into her
+                        # (turned toward her side: at her distance ahead, its line has moved more than
+                        # ``tolerance`` toward where she walks; a car along the road passes behind her)
+                        fwd = ahead[0] * (px + road_start[0] - car[0]) + ahead[1] * (py + road_start[1] - car[1])
+                        turned = (ahead[0] * normal[0] + ahead[1] * normal[1]) * (1.0 if walks_left else -1.0) * fwd
+                        blocks = off < r and fwd > 0.0 and turned > tol
                 if blocks:
                     begins = min(begins, ts[k])
                     if h == 1:
