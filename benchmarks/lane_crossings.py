@@ -119,12 +119,14 @@ def tracking(r) -> tuple[int, int, int]:  # type: ignore[no-untyped-def]
 
 #: How slow (m/s) a car counts as stopped, and how far (deg) off its lane's heading it counts as turned.
 STOPPED, TURNED = 0.3, 10.0
+#: How far ahead (m) a crosser on the car's heading line counts as in its way once it has stopped.
+NEAR = 10.0
 
 
 def stop_and_go(sc, r) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     """The car's largest turn (deg) off its lane's heading while stopped, and its fastest speed (m/s)
-    while the crosser is ahead of it within R of the line it heads along, after it has stopped (a car
-    that restarts or creeps toward her: 0 if none)."""
+    while the crosser is ahead of it, within ``NEAR`` m and within R of the line it heads along, after
+    it has braked to a stop (a car that restarts or creeps toward her: 0 if none)."""
     lane = np.asarray(sc.goal, dtype=float) - np.asarray(sc.ego_start, dtype=float)
     psi = float(np.arctan2(lane[1], lane[0]))
     yaw, v = r.ego[:, 2], r.ego[:, 3]
@@ -134,8 +136,8 @@ def stop_and_go(sc, r) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     rel = r.pedestrians[:, 0, :] - r.ego[:, :2]
     fwd = rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw)
     side = np.abs(rel[:, 1] * np.cos(yaw) - rel[:, 0] * np.sin(yaw))
-    after = np.cumsum(stopped) > 0
-    toward = after & (fwd > 0) & (side < sc.control.safety_radius) & (v >= STOPPED)
+    after = np.cumsum(stopped & (np.cumsum(~stopped) > 0)) > 0  # stopped after moving
+    toward = after & (fwd > 0) & (fwd < NEAR) & (side < sc.control.safety_radius) & (v >= STOPPED)
     return turned, float(v[toward].max()) if toward.any() else 0.0
 
 
@@ -211,6 +213,7 @@ def main() -> None:
           f"{len(avoidable)}, (b) from when the camera could show it: {len(shown)}")  # fmt: skip
     print(f"  closest approach {min(r['closest_m'] for r in rows):.2f} m (R = {base.control.safety_radius} m)")
     yielded = [r["yield_s"] for r in rows]
+    ttg = ttg or [float("nan")]  # none reached the goal (--only)
     print(f"  time to goal median {np.median(ttg):.1f} s, p90 {np.percentile(ttg, 90):.1f} s; yielded in "
           f"{sum(y > 0 for y in yielded)} runs, median {np.median(yielded):.1f} s")  # fmt: skip
     seen = sum(r["frames_observed"] for r in rows)
@@ -220,8 +223,8 @@ def main() -> None:
     turned = [r for r in rows if r["stopped_turned_deg"] > TURNED]
     toward = [r for r in rows if r["toward_her_mps"] > 0]
     print(f"  stopped turned more than {TURNED:g} deg off the lane: {len(turned)} runs "
-          f"{[r['run'] for r in turned]}; moved toward her (ahead, within R of its heading line) after "
-          f"stopping: {len(toward)} runs {[(r['run'], r['toward_her_mps']) for r in toward]}")  # fmt: skip
+          f"{[r['run'] for r in turned]}; moved toward her (within {NEAR:g} m ahead, R of its heading "
+          f"line) after stopping: {len(toward)} runs {[(r['run'], r['toward_her_mps']) for r in toward]}")  # fmt: skip
     for r in off + inside + stuck:
         print("  ", json.dumps(r))
     if args.json:
