@@ -9,7 +9,9 @@ reach the goal, the medians of time to goal and time spent yielding, and the cro
 switches and the coverage of her track's 90 % region (:func:`tracking`). Of the runs within R it
 counts those that could have stopped R short of the crosser's path, braking at the vehicle's limit
 after one control step and the actuation latency, (a) from the moment she stepped out (as if the
-car knew at once) and (b) from the moment the camera could have shown it (:func:`shown_at`).
+car knew at once) and (b) from the moment the camera could have shown it (:func:`shown_at`). It also
+lists the runs whose car stopped turned off its lane, and those whose car, after braking to a stop,
+moved with her ahead within R of its heading line (:func:`stop_and_go`).
 
     python benchmarks/lane_crossings.py               # 100 runs, ~2 min on 2 cores
     python benchmarks/lane_crossings.py --runs 20 --state true
