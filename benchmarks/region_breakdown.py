@@ -9,7 +9,9 @@ is the recorded one), under ablations of the tracker:
 * ``as is``: the sensing's configuration (the drive's own regions; its coverage is the drive's);
 * ``standing only``: no walking model (``switch_rate`` 0, ``initial_standing`` 1): the walking
   component's share of a standing person's region removed;
-* ``independent frames``: ``error_shared`` 0 (every frame a new placement).
+* ``independent frames``: ``error_shared`` 0 (every frame a new placement);
+* ``standing shuffle / 10``: the standing model's random walk ``standing_psd`` a tenth of the
+  default (0.0005 m^2/s): what the stander's shuffle adds to her region.
 
 Per person (pedestrian index) and per run it prints: frames, the truth inside the 90 % region of
 the track and of the raw placement, their errors along and across the line of sight in units of
@@ -123,6 +125,7 @@ ABLATIONS = {
     "as is": {},
     "standing only": {"switch_rate": 0.0, "initial_standing": 1.0},
     "independent frames": {"error_shared": 0.0},
+    "standing shuffle / 10": {"standing_psd": 0.0005},
 }
 
 
