@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from perceived_drive import varied
+from perceived_drive import _frame_errors, varied
 from trustnav.perception.localisation import GroundLocaliser, chi2_90
 from trustnav.perception.world_tracking import WorldTracker
 from trustnav.sim.driving import frame_path
@@ -83,7 +83,8 @@ def drive(case: str, seed: int, att, rate: float | None, render: bool) -> dict:
     truth = {
         round(f.time, 6): [None if v.position is None else np.array(v.position) for v in f.views] for f in r.frames
     }
-    return {"scenario": sc, "att": att, "frames": frames, "truth": truth, "keypoints": not render}
+    inside = [e[2] for e in _frame_errors(r)]  # the drive's own figure, for the replay to reproduce
+    return {"scenario": sc, "att": att, "frames": frames, "truth": truth, "keypoints": not render, "inside": inside}
 
 
 def replay(rec: dict, ablation: dict) -> dict[int, list[tuple]]:
