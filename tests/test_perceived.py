@@ -540,3 +540,28 @@ def test_varied_worlds_differ_by_seed_and_keep_their_people_where_they_stand(rep
         turn = p.body_yaw_deg - q.body_yaw_deg
         assert abs(turn) <= 20.0
         assert dict(p.alternative)["body_yaw_deg"] == pytest.approx(dict(q.alternative)["body_yaw_deg"] + turn)
+
+
+def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root):
+    """benchmarks/region_breakdown.py (issue 34 item 4) explains a drive's 90 % regions by replaying
+    the localiser and the tracker on the frames it recorded: as is, the replay must give the drive's
+    own regions frame for frame (else its ablations explain another drive), and the recording must
+    leave the perceived path as it was."""
+    import sys
+
+    from trustnav.sim.driving import frame_path
+
+    sys.path.insert(0, str(repo_root / "benchmarks"))
+    try:
+        import region_breakdown
+    finally:
+        sys.path.pop(0)
+    track = frame_path.PerceivedPath.track
+    rec = region_breakdown.drive("case-2", 3, False, 10.0, render=False)
+    assert frame_path.PerceivedPath.track is track
+    rows = [r for rs in region_breakdown.replay(rec, {}).values() for r in rs]
+    assert len(rows) == len(rec["inside"]) > 20
+    assert sorted(r[0] for r in rows) == sorted(rec["inside"])
+    # without the walking model the replay differs: the ablation reaches the tracker
+    alone = region_breakdown.replay(rec, region_breakdown.ABLATIONS["standing only"])
+    assert all(r[6] < 1e-3 for rs in alone.values() for r in rs)

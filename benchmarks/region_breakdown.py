@@ -1,0 +1,175 @@
+"""Where the 90 % regions are too wide or too narrow: per person, raw placement against track, and
+what the tracker's walking model and the frames' correlation contribute (issue 34 item 4).
+
+Drives the Cases (keypoint sensing, or ``--render`` through rendered frames and the detector, on
+varied worlds as ``perceived_drive.py --vary``), records each frame's people as the tracker got
+them, then replays the localiser and the world tracker on those frames, open loop (the car's path
+is the recorded one), under ablations of the tracker:
+
+* ``as is``: the sensing's configuration (the drive's own regions; its coverage is the drive's);
+* ``standing only``: no walking model (``switch_rate`` 0, ``initial_standing`` 1): the walking
+  component's share of a standing person's region removed;
+* ``independent frames``: ``error_shared`` 0 (every frame a new placement);
+* ``standing shuffle / 10``: the standing model's random walk ``standing_psd`` a tenth of the
+  default (0.0005 m^2/s): what the stander's shuffle adds to her region.
+
+Per person (pedestrian index) and per run it prints: frames, the truth inside the 90 % region of
+the track and of the raw placement, their errors along and across the line of sight in units of
+their own sigma (rms; 1 for a calibrated region), and the track's median walking probability.
+
+    python benchmarks/region_breakdown.py --case case-2 --rate 10 --seeds 20
+    python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from perceived_drive import _frame_errors, varied
+from trustnav.perception.localisation import GroundLocaliser, chi2_90
+from trustnav.perception.world_tracking import WorldTracker
+from trustnav.sim.driving import frame_path
+from trustnav.sim.driving.episode import run_drive, street_of
+from trustnav.sim.driving.world import load_drive_scenario
+
+
+@contextmanager
+def recording(frames: list):
+    """Records (time, camera, people, pedestrian index, to_world) of every frame the perceived
+    path tracks (instrumentation only: the drive is unchanged)."""
+    original = frame_path.PerceivedPath.track
+
+    def track(self, frame):
+        frames.append((frame.time, frame.camera, [s.person for s in frame.people],
+                       [s.index for s in frame.people], frame.to_scenario))  # fmt: skip
+        return original(self, frame)
+
+    frame_path.PerceivedPath.track = track
+    try:
+        yield frames
+    finally:
+        frame_path.PerceivedPath.track = original
+
+
+def drive(case: str, seed: int, att, rate: float | None, render: bool) -> dict:
+    """One recorded drive: its frames and the truth at each frame's time."""
+    sc = load_drive_scenario(case)
+    frames: list = []
+    kw = {}
+    if render:
+        from trustnav.sim.driving.sensing import make_render_sensing
+
+        sc = varied(sc, seed)
+        kw["renderer"], kw["pipeline"] = make_render_sensing(sc, capture_rate=rate)
+    try:
+        with recording(frames):
+            r = run_drive(sc, sensing="render" if render else "keypoints", seed=seed, attentive=att,
+                          capture_rate=rate, **kw)  # fmt: skip
+    finally:
+        if render:
+            kw["renderer"].close()
+            kw["pipeline"].backend.close()
+    truth = {
+        round(f.time, 6): [None if v.position is None else np.array(v.position) for v in f.views] for f in r.frames
+    }
+    inside = [e[2] for e in _frame_errors(r)]  # the drive's own figure, for the replay to reproduce
+    return {"scenario": sc, "att": att, "frames": frames, "truth": truth, "keypoints": not render, "inside": inside}
+
+
+def replay(rec: dict, ablation: dict) -> dict[int, list[tuple]]:
+    """Localiser and tracker over the recorded frames: per pedestrian index, per frame that updated
+    its track, (track inside, raw inside, track along, track across, raw along, raw across, walking
+    probability), errors whitened by each one's own sigma along and across the line of sight."""
+    sc = rec["scenario"]
+    loc = GroundLocaliser(sc.sensing.localiser(rec["keypoints"]))
+    trk = WorldTracker(dataclasses.replace(sc.sensing.tracker(rec["keypoints"]), **ablation))
+    ground = street_of(sc).ground_height
+    out: dict[int, list[tuple]] = {}
+    for t, camera, people, index, to_world in rec["frames"]:
+        ests = [loc.locate(p, camera, ground) for p in people]
+        if to_world is not None:
+            ests = [None if e is None else e.mapped(to_world) for e in ests]
+        ids = trk.add_frame(t, ests, [p.bbox for p in people], camera, to_world)
+        truth = rec["truth"].get(round(t, 6))
+        if truth is None:
+            continue
+        states = {s.track_id: s for s in trk.predict(t)}
+        walking = {k.track_id: float(k.probabilities[1]) for k in trk.tracks}
+        for j, tid, e in zip(index, ids, ests, strict=True):
+            if j is None or tid is None or tid not in states or truth[j] is None or e is None:
+                continue
+            u = truth[j] - camera.position[:2]
+            u = u / np.hypot(*u)
+            w = np.array([-u[1], u[0]])
+            row = []
+            for mean, cov in ((states[tid].mean[:2], states[tid].covariance[:2, :2]), (e.position, e.covariance)):
+                d = mean - truth[j]
+                row.append((float(d @ np.linalg.solve(cov, d)) <= chi2_90, d @ u / math.sqrt(u @ cov @ u),
+                            d @ w / math.sqrt(w @ cov @ w)))  # fmt: skip
+            (ti, ta, tc), (ri, ra, rc) = row
+            out.setdefault(j, []).append((ti, ri, ta, tc, ra, rc, walking[tid]))
+    return out
+
+
+ABLATIONS = {
+    "as is": {},
+    "standing only": {"switch_rate": 0.0, "initial_standing": 1.0},
+    "independent frames": {"error_shared": 0.0},
+    "standing shuffle / 10": {"standing_psd": 0.0005},
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--case", default="case-1", help="scenario (default case-1)")
+    ap.add_argument("--seeds", type=int, default=5, help="seeds (default 5)")
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's)")
+    ap.add_argument("--render", action="store_true", help="rendered frames on varied worlds (slow)")
+    args = ap.parse_args(argv)
+    if not 1 <= args.seeds <= 200:
+        ap.error(f"--seeds must be in [1, 200], got {args.seeds}")
+    t0 = time.perf_counter()
+    sc = load_drive_scenario(args.case)
+    recs = [
+        drive(args.case, seed, att, args.rate, args.render)
+        for seed in range(args.first_seed, args.first_seed + args.seeds)
+        for att in ([True, False] if sc.variants else [None])
+    ]
+    print(f"{args.case}, {'render' if args.render else 'keypoints'}, {args.rate or 'scenario'} frames/s, seeds "
+          f"{args.first_seed}-{args.first_seed + args.seeds - 1}; drives {time.perf_counter() - t0:.0f} s, "
+          f"load {os.getloadavg()[0]:.1f}")  # fmt: skip
+    for name, ablation in ABLATIONS.items():
+        rows: dict[tuple, list] = {}
+        for rec in recs:
+            for j, r in replay(rec, ablation).items():
+                rows.setdefault(
+                    ("run " + {True: "attentive", False: "distracted", None: "both"}[rec["att"]], j), []
+                ).extend(r)
+        every = np.array([r for rs in rows.values() for r in rs], dtype=float).reshape(-1, 7)
+        print(
+            f"{name}: track inside {every[:, 0].mean():.3f}, raw inside {every[:, 1].mean():.3f} ({len(every)} frames)"
+        )
+        for key in sorted(rows):
+            b = np.array(rows[key], dtype=float)
+            rms = np.sqrt(np.mean(b[:, 2:6] ** 2, axis=0))
+            print(f"  {key[0]}, pedestrian {key[1]}: {len(b)} frames, track inside {b[:, 0].mean():.3f} "
+                  f"(along {rms[0]:.2f}, across {rms[1]:.2f}), raw inside {b[:, 1].mean():.3f} "
+                  f"(along {rms[2]:.2f}, across {rms[3]:.2f}), "
+                  f"walking probability median {np.median(b[:, 6]):.2f}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
