@@ -70,7 +70,11 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", action="append", help="a labelled set (default: all)")
     args = parser.parse_args(argv)
-    names = args.set or sorted(p.stem for p in te.LABELS.glob("*.json"))
+    known = sorted(p.stem for p in te.LABELS.glob("*.json"))
+    names = args.set or known
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        parser.error(f"--set {unknown[0]!r}: expected one of the labelled sets {known}")
     print(f"load {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as cache:
         for name in names:

@@ -141,7 +141,12 @@ def main(argv: list[str] | None = None) -> int:
     if not 1 <= args.seeds <= 200:
         ap.error(f"--seeds must be in [1, 200], got {args.seeds}")
     t0 = time.perf_counter()
-    sc = load_drive_scenario(args.case)
+    if args.rate is not None and not 0 < args.rate <= 60:
+        ap.error(f"--rate must be in (0, 60] frames per second, got {args.rate}")
+    try:
+        sc = load_drive_scenario(args.case)
+    except (ValueError, FileNotFoundError) as exc:
+        ap.error(f"--case {args.case!r}: {exc}")
     recs = [
         drive(args.case, seed, att, args.rate, args.render)
         for seed in range(args.first_seed, args.first_seed + args.seeds)
