@@ -144,6 +144,8 @@ class Yielder:
         ``time`` (s) and ``safety_radius`` (R): remember whom the car waits for (None: stateless);
         ``heading`` (rad) of the car: one it remembers also blocks within R of the line it heads
         along (None: the lane's direction)."""
+        if not len(pedestrians) and self._memory is None:
+            return None  # nobody seen, nobody remembered: nothing to yield to (and nothing to remember)
         c = self.config
         axis = np.array([road_normal[1], -road_normal[0]])  # the driving direction
         left, right = room
