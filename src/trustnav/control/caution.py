@@ -45,6 +45,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from trustnav.control._validate import require_positive
@@ -111,31 +112,44 @@ def caution_bound(
 
     position (2,) of the car's reference point, heading (2,) a unit vector along its path;
     pedestrians (N, 2), trusts (N,) in [0, 1], radii (N,) (R plus any uncertainty margin)."""
-    if len(pedestrians) == 0:
+    n = len(pedestrians)
+    if n == 0:
         return None
+    if len(trusts) != n or len(radii) != n:
+        raise ValueError(
+            f"caution_bound: {n} pedestrians need {n} trusts and radii, got {len(trusts)} and {len(radii)}"
+        )
     c = config
-    hx, hy = float(heading[0]), float(heading[1])
-    px, py = float(position[0]), float(position[1])
-    t, b = c.reaction, c.deceleration
-    reach_speed = c.walking_speed * t
-    unseen = c.walking_speed * c.unseen
-    best: tuple[float, int, float, float] | None = None
-    # plain floats: a step has a few pedestrians, and numpy's per-call cost would dominate
-    for j, ((qx, qy), theta, r) in enumerate(zip(pedestrians.tolist(), trusts.tolist(), radii.tolist(), strict=True)):
-        rx, ry = qx - px, qy - py
+    v, j, reach_j, s_j = _least_bound(
+        float(position[0]), float(position[1]), float(heading[0]), float(heading[1]),
+        np.ascontiguousarray(pedestrians, dtype=float), np.ascontiguousarray(trusts, dtype=float),
+        np.ascontiguousarray(radii, dtype=float), float(c.reaction), float(c.deceleration),
+        float(c.walking_speed * c.reaction), float(c.trust_exponent), float(c.walking_speed * c.unseen),
+        float(c.pass_speed),
+    )  # fmt: skip
+    if j < 0:
+        return None
+    note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {s_j:.1f} m ahead"
+    return CautionDecision(v, j, reach_j, note)
+
+
+@njit(cache=True)
+def _least_bound(px, py, hx, hy, peds, trusts, radii, t, b, reach_speed, exponent, unseen, floor):  # fmt: skip
+    """:func:`caution_bound`'s arithmetic in one compiled pass (a step's few pedestrians: numpy's
+    per-call cost, or the interpreter's, would dominate): the least bound over the pedestrians
+    ahead and whose it is, (bound, index, r + rho, metres ahead); index -1 where none binds."""
+    best_v, best_j, best_reach, best_s = math.inf, -1, 0.0, 0.0
+    for j in range(peds.shape[0]):
+        rx, ry = peds[j, 0] - px, peds[j, 1] - py
         s = rx * hx + ry * hy  # ahead along the path
         if s <= 0.0:
             continue
         d = abs(rx * hy - ry * hx)  # beside the path's line
-        reach = r + reach_speed * (1.0 - min(max(theta, 0.0), 1.0)) ** c.trust_exponent + unseen
+        reach = radii[j] + reach_speed * (1.0 - min(max(trusts[j], 0.0), 1.0)) ** exponent + unseen
         if d >= reach:
             continue
         room = s - math.sqrt(reach * reach - d * d)
-        v = max(b * (math.sqrt(t * t + 2.0 * max(room, 0.0) / b) - t), c.pass_speed)
-        if best is None or v < best[0]:
-            best = (v, j, reach, s)
-    if best is None:
-        return None
-    v, j, reach_j, s_j = best
-    note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {s_j:.1f} m ahead"
-    return CautionDecision(v, j, reach_j, note)
+        v = max(b * (math.sqrt(t * t + 2.0 * max(room, 0.0) / b) - t), floor)
+        if best_j < 0 or v < best_v:
+            best_v, best_j, best_reach, best_s = v, j, reach, s
+    return best_v, best_j, best_reach, best_s
