@@ -23,6 +23,7 @@ from trustnav.control import (
     caution_bound,
     reaction_time,
 )
+from trustnav.control._kernels import under_speed_cap
 from trustnav.sim.driving import load_drive_scenario, run_drive
 from trustnav.sim.driving.episode import drive_metrics
 from trustnav.sim.driving.world import ControlSpec
@@ -214,3 +215,51 @@ def test_a_bound_that_falls_below_the_speed_does_not_strain_the_solver():
     sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml")
     r = run_drive(sc, "keypoints", seed=2, attentive=True)
     assert r.reached_goal and all(s is SolveStatus.OPTIMAL for s in r.statuses)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    peds=st.lists(st.tuples(st.floats(-10.0, 50.0), st.floats(-6.0, 6.0), st.floats(0.0, 1.0)), min_size=1, max_size=5)
+)
+def test_the_bound_is_the_least_over_the_pedestrians_and_names_whose_it_is(peds):
+    """With several pedestrians (the compiled pass), the bound is the least of each one's alone."""
+    alone = [bound((s, d), t) for s, d, t in peds]
+    p = np.array([(s, d) for s, d, _ in peds])
+    both = caution_bound(DEFAULT, CAR, AHEAD, p, np.array([t for *_, t in peds]), np.full(len(peds), 2.5))
+    speeds = [math.inf if b is None else b.speed for b in alone]
+    if min(speeds) == math.inf:
+        assert both is None
+        return
+    assert both is not None and both.speed == min(speeds)
+    assert alone[both.pedestrian] is not None and alone[both.pedestrian].speed == both.speed
+    assert both.reach == alone[both.pedestrian].reach
+
+
+def test_pedestrians_trusts_and_radii_of_different_lengths_are_refused():
+    with pytest.raises(ValueError, match="2 pedestrians need 2 trusts and radii, got 1 and 2"):
+        caution_bound(DEFAULT, CAR, AHEAD, np.ones((2, 2)), np.zeros(1), np.ones(2))
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    accel=st.lists(st.floats(-6.0, 3.0), min_size=1, max_size=12),
+    v0=st.floats(0.0, 12.0),
+    top=st.floats(0.0, 12.0),
+)
+def test_the_warm_start_is_lowered_into_the_speed_rows_and_no_further(accel, v0, top):
+    """The warm start under a speed bound (``under_speed_cap``, compiled): its accelerations are only
+    ever lowered, never below the vehicle's limit, and its speeds then keep the rows (at most
+    ``top``, widened to what braking at the limit reaches) wherever the limit allows."""
+    dt, lo = 0.05, -6.0
+    u = np.column_stack([np.linspace(-0.1, 0.1, len(accel)), accel])
+    out = u.copy()
+    under_speed_cap(out, v0, top, lo, dt)
+    assert np.array_equal(out[:, 0], u[:, 0])  # steering untouched
+    assert np.all(out[:, 1] <= u[:, 1]) and np.all((out[:, 1] == u[:, 1]) | (out[:, 1] >= lo))
+    v = v0
+    for k in range(len(accel)):
+        hi = max(top, v0 + (k + 1) * dt * lo)
+        v += out[k, 1] * dt
+        assert v <= hi + 1e-9 or out[k, 1] == lo
+        if out[k, 1] != u[k, 1]:
+            assert v == pytest.approx(hi, abs=1e-9) or out[k, 1] == lo  # lowered just to the row

@@ -370,6 +370,20 @@ def shift_plan(plan, out):
 
 
 @njit(cache=True)
+def under_speed_cap(u, v0, top, lo, dt):
+    """The bicycle's plan ``u`` (N, 2: steer, acceleration) with its accelerations lowered, in
+    place, where needed so that the speed from ``v0`` stays within caution's speed rows: at most
+    ``top`` at step k + 1, widened (as the model widens them) to ``v0 + (k + 1) dt lo``, the speed
+    braking at ``lo`` reaches; never below ``lo``."""
+    v = v0
+    for k in range(u.shape[0]):
+        hi = max(top, v0 + (k + 1) * dt * lo)
+        if v + u[k, 1] * dt > hi:
+            u[k, 1] = max((hi - v) / dt, lo)
+        v += u[k, 1] * dt
+
+
+@njit(cache=True)
 def single_integrator_curvature(lam, nsimple, omg, stride, n_p, dt, floor, h_mat):
     """The Hessian of the SQP's QP with the pedestrian rows' curvature (an exact-Hessian SQP) for
     the single integrator with cost sum ||u - u_bar||^2: H = 2 (I + dt^2 C) (x) I_2, where C is the
