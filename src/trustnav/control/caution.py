@@ -119,18 +119,28 @@ def caution_bound(
         raise ValueError(
             f"caution_bound: {n} pedestrians need {n} trusts and radii, got {len(trusts)} and {len(radii)}"
         )
-    c = config
     v, j, reach_j, s_j = _least_bound(
         float(position[0]), float(position[1]), float(heading[0]), float(heading[1]),
         np.ascontiguousarray(pedestrians, dtype=float), np.ascontiguousarray(trusts, dtype=float),
-        np.ascontiguousarray(radii, dtype=float), float(c.reaction), float(c.deceleration),
-        float(c.walking_speed * c.reaction), float(c.trust_exponent), float(c.walking_speed * c.unseen),
-        float(c.pass_speed),
+        np.ascontiguousarray(radii, dtype=float), *bound_constants(config),
     )  # fmt: skip
     if j < 0:
         return None
-    note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {s_j:.1f} m ahead"
-    return CautionDecision(v, j, reach_j, note)
+    return CautionDecision(v, j, reach_j, caution_note(v, float(trusts[j]), s_j))
+
+
+def bound_constants(config: CautionConfig) -> tuple[float, float, float, float, float, float]:
+    """What the compiled bound takes from ``config``: the reaction time, the deceleration, the
+    reach of trust 0 in that time, the trust exponent, the reach of ``unseen`` and the floor (a
+    controller gathers them once)."""
+    c = config
+    return (float(c.reaction), float(c.deceleration), float(c.walking_speed * c.reaction), float(c.trust_exponent),
+            float(c.walking_speed * c.unseen), float(c.pass_speed))  # fmt: skip
+
+
+def caution_note(speed: float, trust: float, ahead: float) -> str:
+    """The step's report of a bound ``speed`` set by a pedestrian of ``trust`` ``ahead`` metres ahead."""
+    return f"caution: speed bound {speed:.1f} m/s for a pedestrian (trust {trust:.2f}) {ahead:.1f} m ahead"
 
 
 @njit(cache=True)

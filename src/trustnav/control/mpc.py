@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan, under_speed_cap
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
-from trustnav.control.caution import caution_bound
+from trustnav.control.caution import _least_bound, bound_constants, caution_bound, caution_note
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -124,6 +124,8 @@ class MpcController:
             and self._yielder is None and not self.problem.n_user and self.config.caution is None
         )  # fmt: skip
         self._state_shape = (self.model.nx,)
+        self._caution_constants = () if self.config.caution is None else bound_constants(self.config.caution)
+        self._capped: tuple | None = None  # (cost, v_max, that cost capped to v_max): caution's last
         self._warm_up()
         self.reset()
 
@@ -425,7 +427,8 @@ class MpcController:
             return detour
         bicycle = type(self.model) is KinematicBicycle
         if bicycle:
-            heading = np.array([math.cos(x[2]), math.sin(x[2])])
+            yaw = float(x[2])
+            hx, hy = math.cos(yaw), math.sin(yaw)
             speed = float(x[3])
         else:  # a planar point: toward the goal its cost tracks
             goal = getattr(p.cost, "goal", None)
@@ -436,20 +439,29 @@ class MpcController:
             if n < 1e-9:
                 return detour
             heading = heading / n
+            hx, hy = float(heading[0]), float(heading[1])
             speed = float(np.hypot(*self._last_control[:2]))
-        found = caution_bound(cfg, x[:2], heading, peds, tr, self._radii(len(peds), margins))
-        if found is None:
+        # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
+        radii = self._radii(len(peds), margins)
+        found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
+                                          np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
+        if j < 0:
             return detour
         # the speed rows and the reference the cost tracks get the same bound (a reference above
         # the rows would pull the SQP's merit against them), lowered by at most ``ease`` per step
-        bound = max(found.speed, speed - cfg.ease * self.config.dt) if bicycle else found.speed
+        bound = max(found, speed - cfg.ease * self.config.dt) if bicycle else found
         cost = p.cost
         ref = getattr(cost, "reference", None)
         if ref is not None and hasattr(ref, "v_max"):
-            p.cost = _revised(cost, reference=_revised(ref, v_max=max(min(ref.v_max, bound), 1e-3)))
+            v_max = max(min(ref.v_max, bound), 1e-3)
+            if v_max != ref.v_max:  # (a bound above the reference's speed leaves the cost as it is)
+                last = self._capped  # the last step's capped cost, when it capped the same cost alike
+                if last is None or last[0] is not cost or last[1] != v_max:
+                    last = self._capped = (cost, v_max, _revised(cost, reference=_revised(ref, v_max=v_max)))
+                p.cost = last[2]
         if bicycle:
             p.speed_cap = bound
-        return detour or found.note
+        return detour or caution_note(found, float(tr[j]), ahead)
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays
