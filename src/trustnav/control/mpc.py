@@ -251,6 +251,7 @@ class MpcController:
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
         detour, tracked = None, p.cost
+        radii = None  # each pedestrian's R and margin, for the layers above the MPC (made once)
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
             radii = self._radii(len(peds), margins)
             speed = float(np.hypot(*self._last_control[:2]))
@@ -264,8 +265,11 @@ class MpcController:
             road, lane = self._road, p.cost
             radii = self._radii(len(peds), margins)
             # with caution, the velocity's uncertainty too (caution off: the paper's controller)
-            cov = covariances if self.config.caution is not None and np.ndim(covariances) == 3 else None
-            cov = cov if cov is None or np.shape(cov)[1] == 4 else None  # position-only covariances: no velocity
+            cov = None
+            if self.config.caution is not None and covariances is not None:  # position-only covariances: no velocity
+                cv = covariances
+                cov = cv if (cv.ndim == 3 and cv.shape[1] == 4 if type(cv) is np.ndarray else
+                             np.ndim(cv) == 3 and np.shape(cv)[1] == 4) else None  # fmt: skip
             held = (now, self.config.safety_radius, float(x[2])) if self.config.caution is not None else (None,) * 3
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
@@ -278,7 +282,7 @@ class MpcController:
                 p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
         if self.config.caution is not None:  # caution: the speed bound of who might step out
-            detour = self._caution(x, peds, tr, margins, detour)
+            detour = self._caution(x, peds, tr, self._radii(len(peds), margins) if radii is None else radii, detour)
             if held_stop is not None and type(self.model) is KinematicBicycle:
                 # a yield is a stop: its cap bounds the speed rows too (lowered by at most ``ease``
                 # per step), so no barrier's push (an unseen bystander's growing region) creeps the
@@ -417,7 +421,7 @@ class MpcController:
             detour=None if dl is None else dl.note,
         )
 
-    def _caution(self, x, peds, tr, margins, detour: str | None) -> str | None:
+    def _caution(self, x, peds, tr, radii, detour: str | None) -> str | None:
         """Set this step's caution (:mod:`~trustnav.control.caution`): the reference speed the cost
         tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
         present speed by at most ``ease`` per step). Returns the step's note."""
@@ -442,7 +446,6 @@ class MpcController:
             hx, hy = float(heading[0]), float(heading[1])
             speed = float(np.hypot(*self._last_control[:2]))
         # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
-        radii = self._radii(len(peds), margins)
         found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
                                           np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
         if j < 0:
