@@ -261,7 +261,7 @@ class MpcController:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
         # the yielding layer may stop the car short of someone (with caution, also someone it remembers)
         held_stop = None
-        if self._yielder is not None and (len(peds) or self.config.caution is not None):
+        if self._yielder is not None and (len(peds) or (self.config.caution is not None and self._yielder.remembers)):
             road, lane = self._road, p.cost
             radii = self._radii(len(peds), margins)
             # with caution, the velocity's uncertainty too (caution off: the paper's controller)
@@ -282,7 +282,7 @@ class MpcController:
                 p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
         if self.config.caution is not None:  # caution: the speed bound of who might step out
-            detour = self._caution(x, peds, tr, self._radii(len(peds), margins) if radii is None else radii, detour)
+            detour = self._caution(x, peds, tr, margins, radii, detour)
             if held_stop is not None and type(self.model) is KinematicBicycle:
                 # a yield is a stop: its cap bounds the speed rows too (lowered by at most ``ease``
                 # per step), so no barrier's push (an unseen bystander's growing region) creeps the
@@ -421,7 +421,7 @@ class MpcController:
             detour=None if dl is None else dl.note,
         )
 
-    def _caution(self, x, peds, tr, radii, detour: str | None) -> str | None:
+    def _caution(self, x, peds, tr, margins, radii, detour: str | None) -> str | None:
         """Set this step's caution (:mod:`~trustnav.control.caution`): the reference speed the cost
         tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
         present speed by at most ``ease`` per step). Returns the step's note."""
@@ -445,6 +445,8 @@ class MpcController:
             heading = heading / n
             hx, hy = float(heading[0]), float(heading[1])
             speed = float(np.hypot(*self._last_control[:2]))
+        if radii is None:  # (else the radii the yielding layer made this step: the same)
+            radii = self._radii(len(peds), margins)
         # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
         found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
                                           np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip

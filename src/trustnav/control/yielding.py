@@ -116,6 +116,11 @@ class Yielder:
     def reset(self) -> None:
         self._memory = None
 
+    @property
+    def remembers(self) -> bool:
+        """Whether it holds someone it yielded to (:meth:`decide` with nobody seen then still judges her)."""
+        return self._memory is not None
+
     def decide(
         self,
         position: NDArray[np.float64],
