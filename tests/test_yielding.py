@@ -98,13 +98,13 @@ def test_a_crosser_the_car_waits_for_is_remembered_when_her_track_vanishes():
                         time=t, safety_radius=2.5, **ROAD)  # fmt: skip
 
     crossing = np.array([[4.0, 0.5]]), np.array([[0.0, -0.6]])  # 4 m ahead, walking right at 0.6 m/s
-    assert step(0.0, *crossing) is not None
+    assert step(0.0, *crossing) is not None and y.remembers  # (the controller skips a layer that holds nobody)
     held = step(0.5, none, none)  # gone from the inputs: still waited for
     assert held is not None and held.pedestrian == -1 and "no longer sees" in held.note and held.speed_cap < 2.0
     # at 0.6 m/s she is R from the lane's line (0.5 - 0.6 t <= -2.5) after 5 s
     assert step(4.9, none, none) is not None
     assert step(5.1, none, none) is None
-    assert step(5.2, none, none) is None  # forgotten
+    assert step(5.2, none, none) is None and not y.remembers  # forgotten
     # seen again (within rematch of her prediction): judged from the inputs as usual
     assert step(10.0, *crossing) is not None
     again = step(10.5, np.array([[4.0, 0.3]]), np.array([[0.0, -0.6]]))
