@@ -278,8 +278,10 @@ class MpcController:
             if stop is not None:
                 held_stop = stop
                 ref = lane.reference
-                capped = replace(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
-                p.cost = replace(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
+                # (copied without re-running their checks: a finite stop on the lane past its start, a
+                # positive finite cap)
+                capped = _revised(ref, v_max=max(min(ref.v_max, stop.speed_cap), 1e-3))
+                p.cost = _revised(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
         if self.config.caution is not None:  # caution: the speed bound of who might step out
             detour = self._caution(x, peds, tr, margins, radii, detour)
