@@ -2,8 +2,17 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from trustnav.control import MpcConfig, MpcController, SingleIntegrator, VelocityTrackingCost
+from trustnav.control import (
+    KinematicBicycle,
+    LaneTrackingCost,
+    MpcConfig,
+    MpcController,
+    SingleIntegrator,
+    VelocityTrackingCost,
+)
 from trustnav.control.problem import MpcProblem
 from trustnav.control.reference import BoundedProportionalReference
 
@@ -50,3 +59,22 @@ def test_converged_step_reports_the_exact_check():
         assert sol.first_row_violation == pytest.approx(chk.first_row, abs=1e-12)
         assert np.allclose(sol.predicted_states, SingleIntegrator().rollout(x, sol.inputs, 0.05))
         x = SingleIntegrator().step(x, sol.control, 0.05)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), horizon=st.integers(1, 12))
+def test_the_bicycles_compiled_qp_is_the_lane_costs_gauss_newton_model(seed, horizon):
+    """The fused bicycle kernel sums its gradient and Hessian over the rows that can be nonzero
+    only; they are the lane cost's Gauss-Newton model in numpy (every row, J' W J)."""
+    rng = np.random.default_rng(seed)
+    cost = LaneTrackingCost(start=(0.0, 0.0), goal=(0.0, 80.0))
+    p = MpcProblem(KinematicBicycle(), cost, MpcConfig(horizon=horizon))
+    state = [rng.uniform(-2.0, 2.0), rng.uniform(0.0, 20.0), rng.uniform(1.2, 1.9), rng.uniform(0.0, 10.0)]
+    p.set_stage(state, np.zeros((0, 2)), None, [], u_prev=rng.uniform([-0.5, -3.0], [0.5, 3.0]))
+    u = rng.uniform([-0.5, -5.0], [0.5, 2.0], (horizon, 2))
+    value = p.build(u)
+    h, g = np.empty_like(p.H), np.empty_like(p.f)
+    want = cost.evaluate(p.stage, p.xs, p.sens, u, p.u_prev, h, g)
+    assert value == pytest.approx(want, rel=1e-12)
+    np.testing.assert_allclose(p.f, g, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(p.H, h, rtol=1e-9, atol=1e-9)

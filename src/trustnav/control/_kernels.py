@@ -178,7 +178,7 @@ def bicycle_qp(
         r[k] = nx_ * (xs[kk, 0] - ref_pts[kk, 0]) + ny_ * (xs[kk, 1] - ref_pts[kk, 1])
         r[n_h + k] = _wrap(xs[kk, 2] - ref_yaw[kk])
         r[2 * n_h + k] = xs[kk, 3] - ref_v[kk]
-        for i in range(n):
+        for i in range(2 * k + 2):  # inputs after u_k do not move x(k+1): their columns stay 0
             jr[k, i] = nx_ * sens[kk, 0, i] + ny_ * sens[kk, 1, i]
             jr[n_h + k, i] = sens[kk, 2, i]
             jr[2 * n_h + k, i] = sens[kk, 3, i]
@@ -198,15 +198,40 @@ def bicycle_qp(
     cost = 0.0
     for q in range(nr):
         cost += wv[q] * r[q] * r[q]
+    # gradient 2 J' W r and Gauss-Newton Hessian 2 J' W J over the rows where both factors can be
+    # nonzero, in ascending row order: the rows left out add products with a zero factor (+-0),
+    # which change no sum, so the result is the dense sums' to the last bit, at a fifth of the work
     for i in range(n):
+        ki, d = i // 2, i % 2  # input i is u_ki's steer (d = 0) or acceleration (d = 1)
         acc = 0.0
-        for q in range(nr):
+        for b in range(3):  # cross-track, heading, speed rows of the steps k >= ki
+            for k in range(ki, n_h):
+                q = b * n_h + k
+                acc += jr[q, i] * wv[q] * r[q]
+        q = (3 + d) * n_h + ki  # the input's own row
+        acc += jr[q, i] * wv[q] * r[q]
+        q = (5 + d) * n_h + ki  # its rate rows: at k = ki and k = ki + 1
+        acc += jr[q, i] * wv[q] * r[q]
+        if ki + 1 < n_h:
+            q += 1
             acc += jr[q, i] * wv[q] * r[q]
         f[i] = 2.0 * acc
         for l in range(i, n):
+            kl = l // 2
             acc = 0.0
-            for q in range(nr):
-                acc += jr[q, i] * wv[q] * jr[q, l]
+            for b in range(3):
+                for k in range(kl, n_h):
+                    q = b * n_h + k
+                    acc += jr[q, i] * wv[q] * jr[q, l]
+            if l % 2 == d:  # an input row and rate rows hold one kind of input each
+                if kl == ki:
+                    q = (3 + d) * n_h + ki
+                    acc += jr[q, i] * wv[q] * jr[q, l]
+                    q = (5 + d) * n_h + ki
+                    acc += jr[q, i] * wv[q] * jr[q, l]
+                if (kl == ki or kl == ki + 1) and ki + 1 < n_h:
+                    q = (5 + d) * n_h + ki + 1
+                    acc += jr[q, i] * wv[q] * jr[q, l]
             h_mat[i, l] = 2.0 * acc
             h_mat[l, i] = 2.0 * acc
         h_mat[i, i] += 1e-9
