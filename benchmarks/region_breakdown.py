@@ -19,6 +19,13 @@ their own sigma (rms; 1 for a calibrated region), and the track's median walking
 
     python benchmarks/region_breakdown.py --case case-2 --rate 10 --seeds 20
     python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3
+    python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3 --save r.pkl
+    python benchmarks/region_breakdown.py --case case-1 --load r.pkl   # replay only, no driving
+
+``--save`` writes the recorded drives (pickle: the frames' people, cameras and the truth), so that a
+model change is replayed on the same frames in seconds (``replay`` with ``dataclasses.replace`` of
+the localiser's and tracker's configurations) instead of re-rendering them (a rendered drive at 10
+frames/s takes minutes). A replay is open loop: the car's path is the recorded drive's.
 """
 
 from __future__ import annotations

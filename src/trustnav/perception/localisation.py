@@ -14,11 +14,9 @@ pixels for five unknowns:
   sidewalk raised by its kerb: ``ground_height(xy)``);
 * the stature H, with the prior N(``stature``, ``stature_sigma``^2): the body's pixel size then
   says how far it is (the height prior of MonoLoco, Bertoni et al., ICCV 2019, in closed form);
-* a pitch offset of the camera, with the prior N(0, ``pitch_sigma``^2 + (``common_shift`` s / f)^2)
-  (braking, bumps; and the detector's common vertical shift of the body's joints, a share of its
-  image height s, so an angle that grows as the person nears): where the soles meet the ground says
-  how far the person is (the flat-ground model) only as far as the pitch is known, so an uncertain
-  pitch hands the range over to the height prior;
+* a pitch offset of the camera, with the prior N(0, ``pitch_sigma``^2) (braking, bumps): where the
+  soles meet the ground says how far the person is (the flat-ground model) only as far as the
+  pitch is known, so an uncertain pitch hands the range over to the height prior;
 * an offset of both ankles (share of the stature) with the prior N(0, ``foot_sigma``^2): the
   detector's bias at the feet differs from person to person and pose to pose (the texting pose's
   ankles 6-8 % of the height above the truth where the median is 4 %) and repeats in every frame
@@ -83,10 +81,6 @@ class LocaliserConfig:
     of sight is ~1 cm on rendered frames and in keypoint sensing); foot_sigma: the spread of the
     feet's bias from person to person (share of the stature; the detector's ankles on rendered
     people: 0.014 robust spread less the pixels' 0.007; 0 for a sensor without one);
-    common_shift: the detector's common vertical shift of all of a body's joints (share of the
-    body's image height; 0.009 measured on rendered frames, ``benchmarks/calibrate_keypoints.py``):
-    with the camera's pitch the prior of the fit's pitch offset, an angle that grows as the person
-    nears (sigma^2 = pitch_sigma^2 + (common_shift size_px / f)^2; issue 34 item 4);
     min_confidence: keypoints below it are not used; max_distance: estimates farther than this
     (m) are refused (a person on the horizon)."""
 
@@ -95,12 +89,11 @@ class LocaliserConfig:
     pitch_sigma_deg: float = 0.5
     pixel_sigma: float = 0.007
     pixel_floor: float = 0.3
-    lateral_sigma: float = 0.01
-    body_sigma: float = 0.005
+    lateral_sigma: float = 0.02
+    body_sigma: float = 0.01
     foot_sigma: float = 0.012
     min_confidence: float = 0.3
     max_distance: float = 80.0
-    common_shift: float = 0.009
 
     def __post_init__(self) -> None:
         checks = (
@@ -112,7 +105,6 @@ class LocaliserConfig:
             ("lateral_sigma", self.lateral_sigma, 0.0, 0.5),
             ("body_sigma", self.body_sigma, 0.0, 2.0),
             ("foot_sigma", self.foot_sigma, 0.0, 0.2),
-            ("common_shift", self.common_shift, 0.0, 0.2),
             ("min_confidence", self.min_confidence, 0.0, 1.0),
             ("max_distance", self.max_distance, 1.0, 1e4),
         )
@@ -273,9 +265,7 @@ class GroundLocaliser:
         sigma = np.hypot(cfg.pixel_floor, size_px * sig_rel)
         base_w = conf_w / sigma**2
         w = base_w.copy()
-        # the camera's pitch and the detector's common vertical shift of a body's joints (a share
-        # of its image height, so an angle that grows as the person nears) move every joint alike
-        pitch_sigma = math.hypot(math.radians(cfg.pitch_sigma_deg), cfg.common_shift * size_px / f)
+        pitch_sigma = math.radians(cfg.pitch_sigma_deg)
         theta = np.array([start[0], start[1], cfg.stature, 0.0, 0.0])
         prior_w = np.array(
             [
@@ -312,18 +302,11 @@ class GroundLocaliser:
         if pred is None:
             return None
         # a body that does not fit the model (a detection stretched or squashed) is not believed
-        # more than its residuals allow: the pixels' noise grows by their reduced chi^2 when above 1;
+        # more than its residuals allow: the pixels' noise grows by the reduced chi^2 when above 1;
         # the priors (people's stature, the pitch, the feet) are not the pixels' and keep their width
-        r2 = base_w * (obs - pred) ** 2
-        fit = float(np.sum(r2) / max(len(obs) - 4, 1))
-        # each kind of pixel by its own chi^2 (variance components): the u's of the centre line say
-        # the bearing, the joints' v's the range and the stature; a profile's nose ahead of the
-        # centre line, or a stride, widens the bearing, not the range, and a squashed body the range
-        scale = np.empty(len(obs))
-        scale[:n_u] = max(1.0, float(np.sum(r2[:n_u]) / max(n_u - 1, 1)))
-        scale[n_u:] = max(1.0, float(np.sum(r2[n_u:]) / max(len(obs) - n_u - 3, 1)))
+        fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
         try:
-            cov = np.linalg.inv(jac.T @ ((w / scale)[:, None] * jac) + np.diag(prior_w))
+            cov = np.linalg.inv(jac.T @ ((w / max(1.0, fit))[:, None] * jac) + np.diag(prior_w))
         except np.linalg.LinAlgError:
             return None
         pos = theta[:2].copy()

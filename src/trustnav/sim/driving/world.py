@@ -233,15 +233,12 @@ MAX_PERCEPTION_LATENCY = 5.0
 # how a person's placement errors repeat from frame to frame (docs/perceived.md, "Calibration"):
 # rendered frames through the detector repeat its bias for one pose and viewpoint; measured on Case I
 # seeds 100-101 at 10 frames/s, the raw placements' whitened errors correlate by 0.66-0.71 0.1 s
-# apart, falling about linearly to 0 at 2.2 s (correlation s and shared share below); over the varied
-# worlds 0-2 of perceived_drive.py --vary (issue 34 item 4, fourth pass) the standers' correlation one
-# frame apart is 0.56-0.71 (attentive) and 0.30-0.46 (texting): their mean, 0.5, is the shared share
-# (0.66 before 26 Nov, one world; the texting stander's region was too wide at 10 frames/s). Keypoint
+# apart, falling about linearly to 0 at 2.2 s (correlation s and shared share below). Keypoint
 # sensing draws its joints' errors anew in each frame (correlation 0.1-0.2 at 0.1-1 s, from the
 # stature and the constant detector bias; its 90 % region holds the truth in 0.92-0.95 of the
 # frames at 10 frames/s without inflation, so none: 0.1 s, one frame at 10 frames/s)
 RENDER_ERROR_CORRELATION_S = 2.2
-RENDER_ERROR_SHARED = 0.5
+RENDER_ERROR_SHARED = 0.66
 KEYPOINT_ERROR_CORRELATION_S = 0.1
 KEYPOINT_ERROR_SHARED = 1.0
 # ... but only while the pose repeats (issue 34 item 4): on rendered frames at 10 frames/s Case II's
@@ -274,14 +271,13 @@ class SensingSpec:
     ``outlier_noise`` more (shares of the person's image height). Perceived states
     (:mod:`trustnav.perception.localisation`, :mod:`~trustnav.perception.world_tracking`):
     ``stature`` and ``stature_sigma`` (m, the height prior), ``pitch_sigma_deg`` (how well the
-    camera's pitch is known: the simulated car body does not pitch: 0 by default; the
-    detector's common vertical shift of a body's joints, before 26 Nov stood in for by 0.03 deg, is
-    a share of the body's image height, ``LocaliserConfig.common_shift``),
+    camera's pitch is known: the simulated car body does not pitch: 0.03 deg, the
+    detector's common vertical shift, by default),
     ``accel_psd`` (m^2/s^3, the tracker's walking model), ``error_correlation_s`` (s over which a
     person's placement errors stay alike, fading linearly) and ``error_shared`` (their correlation
     between frames close together): frames closer together count as fewer placements, see
     :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 2.2 s and
-    0.5 for rendered frames (measured), 0.1 s and 1 for keypoint sensing, whose errors are drawn
+    0.66 for rendered frames (measured), 0.1 s and 1 for keypoint sensing, whose errors are drawn
     anew in each frame),
     ``pose_change`` (a share of the body's height: the errors repeat only while the pose does; a
     frame whose limbs moved by d since the person's last keeps exp(-(d / pose_change)^2 / 2) of
@@ -310,13 +306,13 @@ class SensingSpec:
     outlier_noise: Annotated[float, NON_NEGATIVE] = 0.04
     stature: float = 1.70
     stature_sigma: float = 0.09
-    pitch_sigma_deg: float = 0.0
+    pitch_sigma_deg: float = 0.03
     accel_psd: float = 0.25
     error_correlation_s: Annotated[
         float | None, Maybe(Number(0, 60, unit=" s"), "by sensing: 2.2 s for rendered frames, 0.1 s for keypoints")
     ] = None
     error_shared: Annotated[
-        float | None, Maybe(Number(0, 1), "by sensing: 0.5 for rendered frames, 1 for keypoints")
+        float | None, Maybe(Number(0, 1), "by sensing: 0.66 for rendered frames, 1 for keypoints")
     ] = None
     pose_change: Annotated[
         float | None, Maybe(Number(0, 1), "by sensing: 0.03 for rendered frames, 0 for keypoints")
@@ -335,16 +331,12 @@ class SensingSpec:
 
     def localiser(self, keypoints: bool = False) -> LocaliserConfig:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
-        error model draws no per-person bias of the feet: ``foot_sigma`` 0, and whose common vertical
-        shift of a body's joints is its own ``common_noise`` (0 without ``detector_bias``); rendered
-        frames through the detector: the measured spreads, ``LocaliserConfig.foot_sigma`` and
-        ``common_shift``)."""
+        error model draws no per-person bias of the feet: ``foot_sigma`` 0; rendered frames through
+        the detector: the measured spread, ``LocaliserConfig.foot_sigma``)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
-        if keypoints:  # the sensor's own common vertical shift (its error model's, not a fitted number)
-            return replace(cfg, foot_sigma=0.0, common_shift=self.common_noise if self.detector_bias else 0.0)
-        return cfg
+        return replace(cfg, foot_sigma=0.0) if keypoints else cfg
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
