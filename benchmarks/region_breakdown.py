@@ -19,6 +19,13 @@ their own sigma (rms; 1 for a calibrated region), and the track's median walking
 
     python benchmarks/region_breakdown.py --case case-2 --rate 10 --seeds 20
     python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3
+    python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3 --save r.pkl
+    python benchmarks/region_breakdown.py --case case-1 --load r.pkl   # replay only, no driving
+
+``--save`` writes the recorded drives (pickle: the frames' people, cameras and the truth), so that a
+model change is replayed on the same frames in seconds (``replay`` with ``dataclasses.replace`` of
+the localiser's and tracker's configurations) instead of re-rendering them (a rendered drive at 10
+frames/s takes minutes). A replay is open loop: the car's path is the recorded drive's.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ import argparse
 import dataclasses
 import math
 import os
+import pickle
 import sys
 import time
 from contextlib import contextmanager
@@ -137,6 +145,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's)")
     ap.add_argument("--render", action="store_true", help="rendered frames on varied worlds (slow)")
+    ap.add_argument("--save", type=Path, help="write the recorded drives to this file (pickle) for --load")
+    ap.add_argument("--load", type=Path, help="replay drives recorded by --save instead of driving")
     args = ap.parse_args(argv)
     if not 1 <= args.seeds <= 200:
         ap.error(f"--seeds must be in [1, 200], got {args.seeds}")
@@ -147,11 +157,21 @@ def main(argv: list[str] | None = None) -> int:
         sc = load_drive_scenario(args.case)
     except (ValueError, FileNotFoundError) as exc:
         ap.error(f"--case {args.case!r}: {exc}")
-    recs = [
-        drive(args.case, seed, att, args.rate, args.render)
-        for seed in range(args.first_seed, args.first_seed + args.seeds)
-        for att in ([True, False] if sc.variants else [None])
-    ]
+    if args.load is not None:
+        try:
+            with args.load.open("rb") as fh:
+                recs = pickle.load(fh)
+        except (OSError, pickle.UnpicklingError, EOFError) as exc:
+            ap.error(f"--load {str(args.load)!r}: not a recording of --save ({exc})")
+    else:
+        recs = [
+            drive(args.case, seed, att, args.rate, args.render)
+            for seed in range(args.first_seed, args.first_seed + args.seeds)
+            for att in ([True, False] if sc.variants else [None])
+        ]
+    if args.save is not None:
+        with args.save.open("wb") as fh:
+            pickle.dump(recs, fh)
     print(f"{args.case}, {'render' if args.render else 'keypoints'}, {args.rate or 'scenario'} frames/s, seeds "
           f"{args.first_seed}-{args.first_seed + args.seeds - 1}; drives {time.perf_counter() - t0:.0f} s, "
           f"load {os.getloadavg()[0]:.1f}")  # fmt: skip

@@ -542,7 +542,7 @@ def test_varied_worlds_differ_by_seed_and_keep_their_people_where_they_stand(rep
         assert dict(p.alternative)["body_yaw_deg"] == pytest.approx(dict(q.alternative)["body_yaw_deg"] + turn)
 
 
-def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root):
+def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root, tmp_path, capsys):
     """benchmarks/region_breakdown.py (issue 34 item 4) explains a drive's 90 % regions by replaying
     the localiser and the tracker on the frames it recorded: as is, the replay must give the drive's
     own regions frame for frame (else its ablations explain another drive), and the recording must
@@ -565,3 +565,16 @@ def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root):
     # without the walking model the replay differs: the ablation reaches the tracker
     alone = region_breakdown.replay(rec, region_breakdown.ABLATIONS["standing only"])
     assert all(r[6] < 1e-3 for rs in alone.values() for r in rs)
+    # --save writes the recordings, --load replays them without driving; a bad file is one parser line
+    path = tmp_path / "rec.pkl"
+    assert region_breakdown.main(["--case", "case-2", "--seeds", "1", "--first-seed", "3", "--rate", "10",
+                                  "--save", str(path)]) == 0  # fmt: skip
+    assert region_breakdown.main(["--case", "case-2", "--load", str(path)]) == 0
+    out = capsys.readouterr().out.split("\n")
+    assert sum(line.startswith("as is: track inside") for line in out) == 2
+    first, second = (i for i, line in enumerate(out) if line.startswith("as is: track inside"))
+    assert out[first] == out[second]  # the replay of the loaded recording is the recorded drive's
+    (tmp_path / "bad.pkl").write_text("not a recording")
+    with pytest.raises(SystemExit):
+        region_breakdown.main(["--load", str(tmp_path / "bad.pkl")])
+    assert "--load" in capsys.readouterr().err
