@@ -3,18 +3,21 @@
 For every eye-contact-labelled person (true or false) of the labelled sets, the person detector path
 (``MediaPipePoseBackend``, default settings, one frame at a time) is fitted and matched to the label
 (IoU >= 0.5), and the face cue (``FaceEyeContact``, default settings) is run on it. Where it finds a
-face, the face alone is cut again from the frame itself (a square of 1.6 x the face box around the
-mesh's centre), upscaled to ``--side`` px (bicubic) and the face mesh with attention (478 landmarks,
-refined eyelids and irises) fitted on it. From those landmarks, per eye (corners 33-133 and
-362-263, lids 159/145 and 386/374, irises 468/473), averaged over the two eyes:
+face, the face alone is cut again from the frame itself (a square of 1.6 x the detected face box),
+upscaled to ``--side`` px (bicubic) and the face mesh with attention (478 landmarks, refined eyelids
+and irises) fitted on it, as the face cue reads the irises (``FaceConfig.eye_crop_px``). From those
+landmarks, per eye (corners 33-133 and 362-263, lids 159/145 and 386/374, irises 468/473), averaged
+over the two eyes:
 
 - *eye opening*: the lids' gap over the eye's width (eyes cast down close the upper lid);
 - *iris low*: the iris centre's offset below the corners' line, over the eye's width;
 - *iris aside*: the iris centre's horizontal offset from the corners' middle, over half the width.
 
 Printed: one row per person (set, frame, label, height, face and eye size in frame px, the face cue's
-yaw / pitch / p_face / c_face, the three numbers), then the AUC of each number (looking against not
-looking; eye opening and minus iris low count "more open / higher = looking") per face size.
+yaw / pitch / p_face / c_face, the three numbers, iris aside again with the cut moved by 1 px, and
+p_gaze: the face cue's cone on yaw + ``iris_gain_deg`` x iris aside, whatever the eyes' size), then
+the AUC of each number (looking against not looking; eye opening and minus iris low count "more open /
+higher = looking") per face size.
 
     python benchmarks/gaze_evidence.py --rendered /tmp/te    # rendered frames from trust_eval.py --keep /tmp/te
 """
@@ -70,7 +73,7 @@ def main() -> None:
     import cv2
 
     import trust_eval as te
-    from trustnav.perception.face import FaceEyeContact, eye_contact_probability
+    from trustnav.perception.face import FaceConfig, FaceEyeContact, eye_contact_probability
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
     from trustnav.perception.types import box_iou
 
@@ -85,6 +88,8 @@ def main() -> None:
         sets |= {n: args.rendered / n for n in ("rendered", "rendered_heldout", "rendered_sequence")}
     face = FaceEyeContact()
     graphs = face._load()
+    head_crop = FaceEyeContact(FaceConfig(eye_crop_px=0, min_eye_px=10.0))  # the irises before issue 35's pass
+    head_crop._graphs = graphs
     rows = []
     with MediaPipePoseBackend(video=False) as backend:
         for name, folder in sets.items():
@@ -104,9 +109,10 @@ def main() -> None:
                     if box_iou(person.bbox, lab["bbox"]) < 0.5:
                         continue
                     res = face.analyse(frame, person)
+                    before = head_crop.analyse(frame, person).probability
                     row = {"set": name, "frame": frame_name, "id": lab.get("id", ""), "y": bool(lab["eye_contact"]),
                            "h": float(person.bbox[3] - person.bbox[1]), "face_px": res.face_px, "yaw": res.yaw,
-                           "pitch": res.pitch, "p": res.probability, "c": res.confidence,
+                           "pitch": res.pitch, "p": res.probability, "c": res.confidence, "p_old": before,
                            "open": math.nan, "low": math.nan, "aside": math.nan, "eye_px": math.nan,
                            "aside_moved": math.nan, "p_gaze": math.nan}  # fmt: skip
                     lm = _face_mesh(frame, person, face, graphs, args.side)
@@ -127,27 +133,34 @@ def main() -> None:
               f"{r['p_gaze']:.2f} |")  # fmt: skip
     print()
     print("AUC, looking against not looking (people measured: looking + not)")
-    print("| face size | p_face | opening | -iris low | -abs(iris aside) | p_face with the iris |")
-    print("|---|---|---|---|---|---|")
-    for lo, hi, span in ((0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 1e9, ">= 40 px"), (0, 1e9, "all")):
-        r = [x for x in rows if lo <= x["face_px"] < hi]
-        cells = [auc([(x["y"], f(x)) for x in r]) for f in
-                 (lambda x: x["p"], lambda x: x["open"], lambda x: -x["low"], lambda x: -abs(x["aside"]),
-                  lambda x: x["p_gaze"])]  # fmt: skip
-        print(f"| {span} | " + " | ".join(cells) + " |")
-    real = [x for x in rows if x["set"] in REAL]
-    cells = [auc([(x["y"], f(x)) for x in real]) for f in
-             (lambda x: x["p"], lambda x: x["open"], lambda x: -x["low"], lambda x: -abs(x["aside"]),
-                  lambda x: x["p_gaze"])]  # fmt: skip
-    print("| real sets | " + " | ".join(cells) + " |")
+    print("| face size | p_face, irises on the head crop's mesh | p_face (default) | opening | -iris low | "
+          "-abs(iris aside) | p_face, the iris at any size |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
+    numbers = (
+        lambda x: x["p_old"],
+        lambda x: x["p"],
+        lambda x: x["open"],
+        lambda x: -x["low"],
+        lambda x: -abs(x["aside"]),
+        lambda x: x["p_gaze"],
+    )
+    groups = [
+        (f"{span}", [x for x in rows if lo <= x["face_px"] < hi])
+        for lo, hi, span in ((0, 20, "< 20 px"), (20, 40, "20-40 px"), (40, 1e9, ">= 40 px"), (0, 1e9, "all"))
+    ]
+    groups.append(("real sets", [x for x in rows if x["set"] in REAL]))  # fmt: skip
+    for span, r in groups:
+        print(f"| {span} | " + " | ".join(auc([(x["y"], f(x)) for x in r]) for f in numbers) + " |")
 
 
 def _face_mesh(frame: np.ndarray, person: object, face: object, graphs: object, side: int, shift: int = 0):
-    """The face mesh fitted on the face alone, cut from the frame and upscaled: (landmarks in crop
-    pixels, crop pixels per frame pixel), or None where no face is found."""
-    import cv2
+    """The face mesh fitted on the face alone as the face cue reads the irises
+    (``FaceEyeContact._eye_fit``: 1.6 x the detected face box cut from the frame, upscaled to ``side``
+    px), the cut moved ``shift`` px right: (landmarks in frame pixels, 1.0), or None where no face is
+    found."""
+    import dataclasses
 
-    from trustnav.perception.face import _crop, head_box
+    from trustnav.perception.face import FaceEyeContact, _crop, head_box
     from trustnav.perception.mediapipe_backend import protobuf_warning_ignored
 
     head = head_box(person)
@@ -158,31 +171,21 @@ def _face_mesh(frame: np.ndarray, person: object, face: object, graphs: object, 
     crop, scale, x0, y0 = _crop(frame, cx, cy, hs, n)
     with protobuf_warning_ignored():
         dets = [d for d in (graphs.detector.process({"image": crop}).detections or []) if d.score[0] >= 0.5]
-        if not dets:
-            return None
-
-        def dist(d: object) -> float:
-            b = d.location_data.relative_bounding_box
-            return math.hypot(b.xmin + b.width / 2 - 0.5, b.ymin + b.height / 2 - 0.5)
-
-        b = min(dets, key=dist).location_data.relative_bounding_box
-        fx, fy = x0 + (b.xmin + b.width / 2) * n / scale, y0 + (b.ymin + b.height / 2) * n / scale
-        fs = 1.6 * max(b.width, b.height) * n / scale
-        s = max(round(fs), 4)
-        ax, ay = round(fx - s / 2) + shift, round(fy - s / 2)
-        h, w = frame.shape[:2]
-        canvas = np.zeros((s, s, 3), dtype=np.uint8)
-        sx0, sy0, sx1, sy1 = max(ax, 0), max(ay, 0), min(ax + s, w), min(ay + s, h)
-        if sx1 <= sx0 or sy1 <= sy0:
-            return None
-        canvas[sy0 - ay : sy1 - ay, sx0 - ax : sx1 - ax] = frame[sy0:sy1, sx0:sx1]
-        big = np.ascontiguousarray(cv2.resize(canvas, (side, side), interpolation=cv2.INTER_CUBIC))
-        rect = graphs.rect(x_center=0.5, y_center=0.5, width=1.0 / 1.6 * 1.5, height=1.0 / 1.6 * 1.5)
-        mesh = graphs.mesh.process({"image": big, "roi": rect}).landmarks
-    if mesh is None:
+    if not dets:
         return None
-    lm = np.array([(p.x * side, p.y * side, p.z * side) for p in mesh.landmark])
-    return lm, side / s
+
+    def dist(d: object) -> float:
+        b = d.location_data.relative_bounding_box
+        return math.hypot(b.xmin + b.width / 2 - 0.5, b.ymin + b.height / 2 - 0.5)
+
+    det = min(dets, key=dist)
+    b, kps = det.location_data.relative_bounding_box, det.location_data.relative_keypoints
+    rot = -math.atan2(-(kps[1].y - kps[0].y) * n, (kps[1].x - kps[0].x) * n)
+    box = (x0 + b.xmin * n / scale + shift, y0 + b.ymin * n / scale, b.width * n / scale, b.height * n / scale)
+    fitter = FaceEyeContact(dataclasses.replace(face.config, eye_crop_px=side))
+    fitter._graphs = face._graphs
+    lm = fitter._eye_fit(frame, box, rot)
+    return None if lm is None else (lm, 1.0)
 
 
 if __name__ == "__main__":
