@@ -113,8 +113,9 @@ class FaceConfig:
     unit offset.
     eye_crop_px: side of the face-only crop (cut from the frame around the detected face, 1.6 x its
     box, bicubic) on which the mesh is fitted again to read the irises, for faces whose eyes may be
-    ``min_eye_px`` wide (face box >= 5 x ``min_eye_px``); 0: read them on the head crop's mesh (with
-    ``min_eye_px`` = 10, the behaviour before issue 35's gaze pass). ~4 ms per such face.
+    ``min_eye_px`` wide (face box >= 5 x ``min_eye_px``; smaller faces get no iris reading); 0: read
+    them on the head crop's mesh (with ``min_eye_px`` = 10, the behaviour before issue 35's gaze
+    pass). ~4 ms per such face.
     no_face_confidence: confidence of "no face found" on a large person (p_face = 0).
     max_face_weight: the largest share of C_eye the face may carry.
     shift_fits, shift_below_px: a face smaller than ``shift_below_px`` is fitted ``shift_fits`` times
@@ -520,11 +521,15 @@ class FaceEyeContact:
             return FaceResult(face_px=face_px)
         lm = np.array([(p.x * n / scale + x0, p.y * n / scale + y0, p.z * n / scale) for p in mesh.landmark])
         yaw, pitch = head_pose(lm, focal, w / 2, h / 2)
-        r, eye_w = iris_offset(lm)
-        if cfg.eye_crop_px and face_px >= 5 * cfg.min_eye_px:
-            box = (x0 + b.xmin * n / scale, y0 + b.ymin * n / scale, b.width * n / scale, b.height * n / scale)
-            eyes = self._eye_fit(frame, box, rot)
-            r, eye_w = iris_offset(eyes) if eyes is not None else (math.nan, 0.0)
+        if not cfg.eye_crop_px:
+            r, eye_w = iris_offset(lm)
+        else:  # the irises only from the face refitted alone (the head crop's are not read)
+            r, eye_w = math.nan, 0.0
+            if face_px >= 5 * cfg.min_eye_px:
+                box = (x0 + b.xmin * n / scale, y0 + b.ymin * n / scale, b.width * n / scale, b.height * n / scale)
+                eyes = self._eye_fit(frame, box, rot)
+                if eyes is not None:
+                    r, eye_w = iris_offset(eyes)
         gaze = yaw
         if not math.isnan(r) and eye_w >= cfg.min_eye_px:
             gaze = yaw + cfg.iris_gain_deg * r
