@@ -286,3 +286,37 @@ def test_estimate_fits_small_faces_on_shifted_crops_offline_only(
     with pytest.raises(Captured):
         main(["estimate", *args, *flags])
     assert OFFLINE_SHIFT_FITS == 5 and seen["config"].shift_fits == fits  # real time has no time for them
+
+
+def test_eye_crop_px_is_validated():
+    with pytest.raises(ValueError, match="eye_crop_px"):
+        FaceConfig(eye_crop_px=32)
+    assert FaceConfig(eye_crop_px=0).eye_crop_px == 0
+
+
+def test_eyes_turned_back_to_the_camera_count_and_eyes_turned_away_do_not(
+    street_images, repo_root, mediapipe_backend, read_rgb
+):
+    """Gaze = head yaw + the eyes' turn in the head, the irises read on the face refitted alone
+    (``FaceConfig.eye_crop_px``): street_2's woman in white turns her head ~30 deg away and her eyes
+    back to the camera (labelled looking); crossing.jpg's man behind the polo shirt turns his head
+    ~20 deg and his eyes further away (labelled not looking). On the head crop's mesh the irises of
+    these 5-7 px eyes are not read (``eye_crop_px=0``, the iris threshold of 10 px there) and both
+    read the head alone, the wrong way."""
+    import json
+
+    from trustnav.perception.types import box_iou
+
+    labels = json.loads((repo_root / "benchmarks" / "data" / "labels" / "street.json").read_text())["frames"]
+    cases = (("street_2.png", "woman in white", True), ("crossing.jpg", "man in dark jacket", False))
+    refit, head_crop = FaceEyeContact(), FaceEyeContact(FaceConfig(eye_crop_px=0, min_eye_px=10.0))
+    for image, who, looking in cases:
+        frame = read_rgb(street_images / image)
+        box = next(p["bbox"] for p in labels[image]["people"] if p["id"].startswith(who))
+        person = max(mediapipe_backend(frame), key=lambda q: box_iou(q.bbox, box))
+        assert box_iou(person.bbox, box) >= 0.5, (image, who)
+        new, old = refit.analyse(frame, person), head_crop.analyse(frame, person)
+        assert new.face_px >= 25 and old.gaze_yaw == old.yaw  # no iris on the head crop's mesh
+        turn = new.gaze_yaw - new.yaw  # the eyes' turn in the head, the head's turn: opposite when looking
+        assert (turn * new.yaw < 0) == looking and abs(turn) >= 5, (who, new.yaw, turn)
+        assert (new.probability >= 0.5) == looking and (old.probability >= 0.5) != looking, (who, new, old)

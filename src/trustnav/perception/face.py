@@ -15,7 +15,10 @@ detector (``FaceDetectionShortRangeCpu``) and the face mesh with attention (``Fa
   e2 down, d the ray).
 - **Gaze from the irises** (:func:`iris_offset`), where the eyes are at least ``min_eye_px`` wide:
   the iris centre's offset from the middle of the eye corners as a fraction of half the eye width,
-  r in [-1, 1], adds ``iris_gain_deg * r`` to the yaw.
+  r in [-1, 1], adds ``iris_gain_deg * r`` to the yaw (eye-in-head rotation: a head turned away
+  with the eyes turned back reads looking). The irises are read on a second fit of the mesh on
+  the face alone, cut from the frame's own pixels and upscaled (``eye_crop_px``), not on the head
+  crop's mesh (resampled twice, its irises follow the head at a few pixels per eye).
 - **Eye-contact probability** p_face = 1 / (1 + exp((rho - 1) / s)) with
   rho = sqrt((yaw / max_yaw)^2 + ((pitch - pitch_offset) / max_pitch)^2): 0.5 at the edge of the
   "looking" cone (turn 25 deg, tilt 20 deg), near 1 facing the camera.
@@ -106,7 +109,13 @@ class FaceConfig:
     max_yaw_deg, max_pitch_deg, softness, pitch_offset_deg: the "looking" cone of p_face.
     face_px_min, face_px_full: face box heights where the size confidence is 0 and 1.
     blur_ref: Laplacian variance at which the sharpness confidence is 0.5.
-    min_eye_px, iris_gain_deg: gaze from the irises only on eyes this wide; degrees per unit offset.
+    min_eye_px, iris_gain_deg: gaze from the irises only on eyes this wide (frame px); degrees per
+    unit offset.
+    eye_crop_px: side of the face-only crop (cut from the frame around the detected face, 1.6 x its
+    box, bicubic) on which the mesh is fitted again to read the irises, for faces whose eyes may be
+    ``min_eye_px`` wide (face box >= 5 x ``min_eye_px``; smaller faces get no iris reading); 0: read
+    them on the head crop's mesh (with ``min_eye_px`` = 10, the behaviour before issue 35's gaze
+    pass). ~4 ms per such face.
     no_face_confidence: confidence of "no face found" on a large person (p_face = 0).
     max_face_weight: the largest share of C_eye the face may carry.
     shift_fits, shift_below_px: a face smaller than ``shift_below_px`` is fitted ``shift_fits`` times
@@ -126,8 +135,9 @@ class FaceConfig:
     face_px_min: float = 8.0
     face_px_full: float = 20.0
     blur_ref: float = 20.0
-    min_eye_px: float = 10.0
+    min_eye_px: float = 4.5
     iris_gain_deg: float = 40.0
+    eye_crop_px: int = 256
     no_face_confidence: float = 0.4
     max_face_weight: float = 0.9
     shift_fits: int = 1
@@ -148,6 +158,8 @@ class FaceConfig:
             raise ValueError("need 0 <= face_px_min < face_px_full")
         if self.blur_ref < 0 or self.min_eye_px < 0 or self.iris_gain_deg < 0:
             raise ValueError("blur_ref, min_eye_px and iris_gain_deg must be >= 0")
+        if self.eye_crop_px != 0 and self.eye_crop_px < 64:
+            raise ValueError(f"eye_crop_px must be 0 (off) or >= 64, got {self.eye_crop_px!r}")
         if not 0.0 <= self.no_face_confidence <= 1.0 or not 0.0 <= self.max_face_weight <= 1.0:
             raise ValueError("no_face_confidence and max_face_weight must be in [0, 1]")
         if not 1 <= self.shift_fits <= len(_SHIFTS) + 1:
@@ -412,6 +424,35 @@ class FaceEyeContact:
             fits.append(self._fit(frame, cx + dx, cy + dy, side))
         return dataclasses.replace(self._combine(fits), seconds=time.perf_counter() - t0)
 
+    def _eye_fit(
+        self, frame: NDArray[np.uint8], box: tuple[float, float, float, float], rotation: float
+    ) -> NDArray[np.float64] | None:
+        """The face mesh fitted again on the face alone: a square of 1.6 x the face box (x, y, w, h in
+        frame pixels) cut from ``frame`` and upscaled to ``eye_crop_px`` (bicubic), the mesh's region
+        1.5 x the box as MediaPipe places it; landmarks in frame pixels, None without a mesh."""
+        import cv2
+
+        from trustnav.perception.mediapipe_backend import protobuf_warning_ignored
+
+        side = self.config.eye_crop_px
+        s = max(round(1.6 * max(box[2], box[3])), 4)
+        ax, ay = round(box[0] + box[2] / 2 - s / 2), round(box[1] + box[3] / 2 - s / 2)
+        h, w = frame.shape[:2]
+        sx0, sy0, sx1, sy1 = max(ax, 0), max(ay, 0), min(ax + s, w), min(ay + s, h)
+        if sx1 <= sx0 or sy1 <= sy0:
+            return None
+        canvas = np.zeros((s, s, 3), dtype=np.uint8)
+        canvas[sy0 - ay : sy1 - ay, sx0 - ax : sx1 - ax] = frame[sy0:sy1, sx0:sx1]
+        big = np.ascontiguousarray(cv2.resize(canvas, (side, side), interpolation=cv2.INTER_CUBIC))
+        g = self._load()
+        rect = g.rect(x_center=0.5, y_center=0.5, width=1.5 / 1.6, height=1.5 / 1.6, rotation=rotation)
+        with protobuf_warning_ignored():
+            mesh = g.mesh.process({"image": big, "roi": rect}).landmarks
+        if mesh is None:
+            return None
+        k = s / side
+        return np.array([(p.x * side * k + ax, p.y * side * k + ay, p.z * side * k) for p in mesh.landmark])
+
     @staticmethod
     def _combine(fits: Sequence[FaceResult | None]) -> FaceResult:
         """One reading from fits of the same face on shifted crops (the first is the unshifted one):
@@ -480,7 +521,15 @@ class FaceEyeContact:
             return FaceResult(face_px=face_px)
         lm = np.array([(p.x * n / scale + x0, p.y * n / scale + y0, p.z * n / scale) for p in mesh.landmark])
         yaw, pitch = head_pose(lm, focal, w / 2, h / 2)
-        r, eye_w = iris_offset(lm)
+        if not cfg.eye_crop_px:
+            r, eye_w = iris_offset(lm)
+        else:  # the irises only from the face refitted alone (the head crop's are not read)
+            r, eye_w = math.nan, 0.0
+            if face_px >= 5 * cfg.min_eye_px:
+                box = (x0 + b.xmin * n / scale, y0 + b.ymin * n / scale, b.width * n / scale, b.height * n / scale)
+                eyes = self._eye_fit(frame, box, rot)
+                if eyes is not None:
+                    r, eye_w = iris_offset(eyes)
         gaze = yaw
         if not math.isnan(r) and eye_w >= cfg.min_eye_px:
             gaze = yaw + cfg.iris_gain_deg * r
