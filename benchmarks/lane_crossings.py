@@ -19,6 +19,7 @@ moved with her ahead within R of its heading line (:func:`stop_and_go`).
     python benchmarks/lane_crossings.py --caution off  # without the trust-aware speed bound
     python benchmarks/lane_crossings.py --seed 1       # 100 other worlds
     python benchmarks/lane_crossings.py --only 22 70 --set caution_unseen_frames=1
+    python benchmarks/lane_crossings.py --set caution_occlusion=false  # the tracker's regions alone
 """
 
 from __future__ import annotations
@@ -164,14 +165,15 @@ def main() -> None:
     ap.add_argument("--json", help="write every run's summary to this file")
     args = ap.parse_args()
     base = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
-    sets: dict[str, float] = {}
+    sets: dict[str, float | bool] = {}
     for kv in args.set:  # checked once, before any drive: a bad option is one line naming it
         key, eq, value = kv.partition("=")
         try:
-            sets[key] = float(value) if eq else float("nan")
+            flag = {"true": True, "false": False}.get(value.lower())
+            sets[key] = flag if flag is not None else float(value) if eq else float("nan")
             dataclasses.replace(base.control, **sets)
         except (TypeError, ValueError) as exc:  # SchemaError is a ValueError
-            ap.error(f"--set {kv!r}: {exc} (expected [control] OPTION=NUMBER)")
+            ap.error(f"--set {kv!r}: {exc} (expected [control] OPTION=NUMBER, or true/false)")
     rng = np.random.default_rng(args.seed)
     rows = []
     for k in range(args.runs):

@@ -37,6 +37,18 @@ and as a hard bound on the bicycle's speed rows ``v(k+1) <= cap`` (lowered by at
 m/s^2 per step from the present speed, so a bound that appears below the speed brakes the car
 smoothly; the model's widening to the reachable speeds keeps the QP feasible). It never touches
 the CBF rows: the pedestrian's barrier, the road's and their relaxation are unchanged.
+
+**Unseen pedestrians** (``occlusion``; the caller gives each pedestrian's state and covariance at
+the last frame that observed her, and when: :func:`unseen_regions`). A tracker coasting a person
+the camera no longer sees (below the image in front of the car, beside it) grows her covariance
+by its walking model's random acceleration, so R plus her margin grows faster than she walks away
+and the car waits, or is trapped, for as long as the track lives. Trust makes the same bet here
+as above: over the ``tau`` s since she was last seen she keeps to her last estimated velocity
+(its uncertainty propagated, no process noise) and may leave that path by at most
+``rho = walking_speed * (1 - theta) ** trust_exponent * (tau + lead)``; the region used is that
+one where its margin (the estimate's plus ``rho``) is below the tracker's, the tracker's
+otherwise. A trusted crosser's region leaves the lane at her walking pace; an untrusted one's
+grows at up to walking speed, as the tracker's or faster.
 """
 
 from __future__ import annotations
@@ -49,7 +61,7 @@ from numpy.typing import NDArray
 
 from trustnav.control._validate import require_positive
 
-__all__ = ["CautionConfig", "CautionDecision", "caution_bound", "reaction_time"]
+__all__ = ["CautionConfig", "CautionDecision", "caution_bound", "reaction_time", "unseen_regions"]
 
 
 def reaction_time(camera_rate: float, confirm_frames: float = 2.0, perception_latency: float = 0.0,
@@ -72,7 +84,8 @@ class CautionConfig:
     step-out of an untrusted pedestrian), ``trust_exponent`` (2: the reach of trust 0.5 is a
     quarter of trust 0's), ``deceleration`` (4 m/s^2, below the vehicle's 6: the braking the bound
     counts on), ``pass_speed`` (4 m/s: the floor), ``ease`` (3 m/s^2: how fast a lower bound
-    brings the speed rows down)."""
+    brings the speed rows down), ``occlusion`` (True: an unseen pedestrian's region from her last
+    sighting, :func:`unseen_regions`; False: the tracker's alone)."""
 
     reaction: float = 2.15
     walking_speed: float = 1.4
@@ -81,10 +94,13 @@ class CautionConfig:
     pass_speed: float = 4.0
     ease: float = 3.0
     unseen: float = 0.0
+    occlusion: bool = True
 
     def __post_init__(self) -> None:
         names = ("reaction", "walking_speed", "trust_exponent", "deceleration", "pass_speed", "ease", "unseen")
         require_positive("caution", self, names, zero_ok=("reaction", "walking_speed", "pass_speed", "unseen"))
+        if not isinstance(self.occlusion, bool):
+            raise ValueError(f"caution occlusion must be true or false, got {self.occlusion!r}")
 
 
 @dataclass(frozen=True)
@@ -139,3 +155,32 @@ def caution_bound(
     v, j, reach_j, s_j = best
     note = f"caution: speed bound {v:.1f} m/s for a pedestrian (trust {float(trusts[j]):.2f}) {s_j:.1f} m ahead"
     return CautionDecision(v, j, reach_j, note)
+
+
+def unseen_regions(
+    config: CautionConfig,
+    tau: NDArray[np.float64],
+    seen_states: NDArray[np.float64],
+    seen_covariances: NDArray[np.float64],
+    trusts: NDArray[np.float64],
+    lead: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Each pedestrian's region on the bet that she keeps to her last seen velocity (module
+    docstring, "Unseen pedestrians"): her state (N, 4) ``tau`` (N,) s after her last sighting
+    (``seen_states`` (N, 4), ``seen_covariances`` (N, 4, 4) of (x, y, v_x, v_y) then), propagated
+    at constant velocity without process noise, and the reach ``rho`` (N,) (m) she may have
+    strayed from it by ``tau + lead`` s, given her trust (N,). Returns (states, covariances, rho)."""
+    tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
+    x = np.asarray(seen_states, dtype=float)
+    p = np.asarray(seen_covariances, dtype=float)
+    t = tau[:, None, None]
+    states = x.copy()
+    states[:, :2] += x[:, 2:] * tau[:, None]
+    pp, pv, vv = p[:, :2, :2], p[:, :2, 2:], p[:, 2:, 2:]
+    cov = p.copy()
+    cov[:, :2, :2] = pp + t * (pv + np.transpose(pv, (0, 2, 1))) + t * t * vv
+    cov[:, :2, 2:] = pv + t * vv
+    cov[:, 2:, :2] = np.transpose(cov[:, :2, 2:], (0, 2, 1))
+    theta = np.clip(np.asarray(trusts, dtype=float), 0.0, 1.0)
+    rho = config.walking_speed * (1.0 - theta) ** config.trust_exponent * (tau + float(lead))
+    return states, cov, rho

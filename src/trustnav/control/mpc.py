@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
-from trustnav.control.caution import caution_bound
+from trustnav.control.caution import caution_bound, unseen_regions
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -202,6 +202,7 @@ class MpcController:
         trusts: ArrayLike,
         time: float | None = None,
         covariances: ArrayLike | None = None,
+        last_seen: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
     ) -> MpcSolution:
         """One MPC step from ego ``state`` with pedestrians (N_p, 2), velocities (N_p, 2) and
         trusts (N_p,) in [0, 1]. ``time`` (s): when the state was measured and the command will be
@@ -227,6 +228,8 @@ class MpcController:
             c = self.config
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
+            if last_seen is not None and c.caution is not None and c.caution.occlusion and len(peds):
+                peds, vels, margins, covariances = self._unseen(x, peds, vels, tr, margins, covariances, last_seen, now)
         detour, tracked = None, p.cost
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
             radii = self._radii(len(peds), margins)
@@ -429,6 +432,34 @@ class MpcController:
         if bicycle:
             p.speed_cap = bound
         return detour or found.note
+
+    def _unseen(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
+        """Pedestrians seen last ``tau`` > 0 s ago: the region on trust's bet that each keeps to her
+        last seen velocity (:func:`~trustnav.control.caution.unseen_regions`: her estimate then,
+        propagated at that velocity, its margin plus the reach ``rho``) where its margin is below
+        the tracker's; her position, velocity, margin and covariance replaced by it there."""
+        c, n = self.config, len(peds)
+        try:
+            states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
+        except (TypeError, ValueError):
+            states = covs = times = np.zeros(0)
+        cov = np.asarray(covariances, dtype=float)
+        shapes = (states.shape, covs.shape, times.shape)
+        finite = bool(np.isfinite(states).all() and np.isfinite(covs).all() and np.isfinite(times).all())
+        if shapes != ((n, 4), (n, 4, 4), (n,)) or cov.shape != (n, 4, 4) or not finite:
+            raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
+                             f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
+        lead = c.latency + c.horizon * c.dt
+        tau = now - times
+        bet, bet_cov, rho = unseen_regions(c.caution, tau, states, covs, tr, lead)
+        pos = bet[:, :2] + bet[:, 2:] * c.latency  # where the latency compensation puts a pedestrian
+        m = uncertainty_margins(x[:2], pos, bet_cov, lead, c.confidence) + rho
+        use = (tau > 0) & (m < margins)
+        if not use.any():
+            return peds, vels, margins, covariances
+        peds, vels, margins, cov = peds.copy(), vels.copy(), margins.copy(), cov.copy()
+        peds[use], vels[use], margins[use], cov[use] = pos[use], bet[use, 2:], m[use], bet_cov[use]
+        return peds, vels, margins, cov
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays

@@ -42,6 +42,13 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
+- **Room beside others too** (with ``time`` and ``safety_radius``): a side's room ends where
+  anyone else's region (their radius about their predicted place) lies between her and the road's
+  edge, within both radii of her along the road. A crosser walking away to one side with a
+  bystander on the other kerb leaves a sliver the car cannot fit in: passing behind her there,
+  the barrier's push from her growing region drove the car into the bystander's corner, where it
+  stopped trapped (a bicycle cannot back out) until her track was dropped and it drove past her
+  within R. The car now waits until there is room for it between them.
 - **Released only clear of the line the car heads along** (with ``time`` and ``heading``): a crosser
   it yielded to at the last step and still sees (within ``rematch`` of her remembered prediction)
   keeps blocking, once the room test above would let the car pass behind her, while she is ahead
@@ -188,7 +195,7 @@ class Yielder:
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
             max(float(speed), 0.1), cov, float(z), n_real, d_lane, np.ascontiguousarray(position, dtype=float),
-            np.ascontiguousarray(ahead, dtype=float), extra, held,
+            np.ascontiguousarray(ahead, dtype=float), extra, held, remember,
         )  # fmt: skip
         if remember and 0 <= j < n_real:
             # remembered as crossing: her velocity across the road only (along it, a frame's estimate
@@ -225,7 +232,7 @@ class Yielder:
 
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra, held):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra, held, joint):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
@@ -235,10 +242,21 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
     none where ``cov`` is empty) toward the road's line, is skipped. Pedestrians from ``n_real`` on
     are remembered, not seen: they block within their radius of the lane's line (``d_lane`` from the
     road's line) or of the line the car heads along (``ahead``, through ``car``), and their stop lies
-    ``extra[j - n_real]`` further short (their remembered position's range error)."""
+    ``extra[j - n_real]`` further short (their remembered position's range error). ``joint``: a
+    side's room ends at the region of anyone else beside them along the road (module docstring)."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
+    n_p = peds.shape[0]
+    d_all = np.empty((n_p, n_t))  # everyone's offset from the road's line and place along it, at
+    s_all = np.empty((n_p, n_t))  # their estimated velocity (``joint``: the room beside another)
+    if joint:
+        for i in range(n_p):
+            for k in range(n_t):
+                px = peds[i, 0] + vels[i, 0] * ts[k] - road_start[0]
+                py = peds[i, 1] + vels[i, 1] * ts[k] - road_start[1]
+                d_all[i, k] = px * normal[0] + py * normal[1]
+                s_all[i, k] = px * axis[0] + py * axis[1]
     best_stop, best_j = 0.0, -1
     for j in range(peds.shape[0]):
         r = radii[j]
@@ -269,8 +287,16 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 if h == 0:
                     s[k] = sk
                 d = px * normal[0] + py * normal[1]
-                room_left = (d + r <= left - tol) and not walks_left
-                room_right = (d - r >= -right + tol) and not walks_right
+                lo, hi = -right, left  # the car's room beside her: the road's, less anyone else's region
+                if joint:
+                    for i in range(n_p):
+                        if i != j and abs(s_all[i, k] - sk) < radii[i] + r:
+                            if d_all[i, k] < d:
+                                lo = max(lo, d_all[i, k] + radii[i])
+                            else:
+                                hi = min(hi, d_all[i, k] - radii[i])
+                room_left = (d + r <= hi - tol) and not walks_left
+                room_right = (d - r >= lo + tol) and not walks_right
                 near = (d - r < left) and (d + r > -right)
                 # one it no longer sees (j >= n_real) blocks within r of the lane's line: the MPC,
                 # not knowing her, would not steer round her
