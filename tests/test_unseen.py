@@ -102,5 +102,7 @@ def test_the_room_behind_a_crosser_is_room_the_car_fits_in_beside_a_bystander():
     assert d is not None and d.note.startswith("yielding")
     assert d.stop[0] < 25.0 - 2.5  # short of her
     assert _yield([crosser, [45.0, -3.3]], [walking_left, [0.0, 0.0]], True) is None  # 20 m further on
+    # a bystander on the side she walks to, beyond her: the car passes behind them both
+    assert _yield([[25.0, -0.6], [25.5, -3.6]], [[0.0, -1.0], [0.0, 0.0]], True) is None
     # the stateless layer (caution off: the paper's controller) judges one pedestrian at a time
     assert _yield([crosser, [25.5, -3.3]], [walking_left, [0.0, 0.0]], False) is None

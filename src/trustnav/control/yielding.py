@@ -42,9 +42,10 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
-- **Room beside others too** (with ``time`` and ``safety_radius``): a side's room ends where
-  anyone else's region (their radius about their predicted place) lies between her and the road's
-  edge, within both radii of her along the road. A crosser walking away to one side with a
+- **Room beside others too** (with ``time`` and ``safety_radius``): the car's centre on a side
+  of her must also be outside anyone else's region (their radius about their predicted place)
+  within both radii of her along the road; where such a region covers the nearest place, the place
+  moves past it, and the side has room if that place is still on the road. A crosser walking away to one side with a
   bystander on the other kerb leaves a sliver the car cannot fit in: passing behind her there,
   the barrier's push from her growing region drove the car into the bystander's corner, where it
   stopped trapped (a bicycle cannot back out) until her track was dropped and it drove past her
@@ -287,16 +288,23 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 if h == 0:
                     s[k] = sk
                 d = px * normal[0] + py * normal[1]
-                lo, hi = -right, left  # the car's room beside her: the road's, less anyone else's region
+                # the nearest place for the car's centre on each side of her, moved past anyone
+                # else's region there (beside her along the road: within both radii)
+                c_left, c_right = d + r, d - r
                 if joint:
-                    for i in range(n_p):
-                        if i != j and abs(s_all[i, k] - sk) < radii[i] + r:
-                            if d_all[i, k] < d:
-                                lo = max(lo, d_all[i, k] + radii[i])
-                            else:
-                                hi = min(hi, d_all[i, k] - radii[i])
-                room_left = (d + r <= hi - tol) and not walks_left
-                room_right = (d - r >= lo + tol) and not walks_right
+                    for _ in range(n_p):
+                        moved = False
+                        for i in range(n_p):
+                            if i != j and abs(s_all[i, k] - sk) < radii[i] + r:
+                                lo_i, hi_i = d_all[i, k] - radii[i], d_all[i, k] + radii[i]
+                                if lo_i < c_left < hi_i:
+                                    c_left, moved = hi_i, True
+                                if lo_i < c_right < hi_i:
+                                    c_right, moved = lo_i, True
+                        if not moved:
+                            break
+                room_left = (c_left <= left - tol) and not walks_left
+                room_right = (c_right >= -right + tol) and not walks_right
                 near = (d - r < left) and (d + r > -right)
                 # one it no longer sees (j >= n_real) blocks within r of the lane's line: the MPC,
                 # not knowing her, would not steer round her
