@@ -57,6 +57,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from trustnav.control._validate import require_positive
@@ -170,17 +171,32 @@ def unseen_regions(
     (``seen_states`` (N, 4), ``seen_covariances`` (N, 4, 4) of (x, y, v_x, v_y) then), propagated
     at constant velocity without process noise, and the reach ``rho`` (N,) (m) she may have
     strayed from it by ``tau + lead`` s, given her trust (N,). Returns (states, covariances, rho)."""
-    tau = np.maximum(np.asarray(tau, dtype=float), 0.0)
-    x = np.asarray(seen_states, dtype=float)
-    p = np.asarray(seen_covariances, dtype=float)
-    t = tau[:, None, None]
-    states = x.copy()
-    states[:, :2] += x[:, 2:] * tau[:, None]
-    pp, pv, vv = p[:, :2, :2], p[:, :2, 2:], p[:, 2:, 2:]
-    cov = p.copy()
-    cov[:, :2, :2] = pp + t * (pv + np.transpose(pv, (0, 2, 1))) + t * t * vv
-    cov[:, :2, 2:] = pv + t * vv
-    cov[:, 2:, :2] = np.transpose(cov[:, :2, 2:], (0, 2, 1))
-    theta = np.clip(np.asarray(trusts, dtype=float), 0.0, 1.0)
-    rho = config.walking_speed * (1.0 - theta) ** config.trust_exponent * (tau + float(lead))
+    tau = np.ascontiguousarray(tau, dtype=float)
+    x = np.ascontiguousarray(seen_states, dtype=float)
+    p = np.ascontiguousarray(seen_covariances, dtype=float)
+    states, cov, rho = np.empty(x.shape), np.empty(p.shape), np.empty(tau.shape)
+    _unseen(tau, x, p, np.ascontiguousarray(trusts, dtype=float), float(lead), float(config.walking_speed),
+            float(config.trust_exponent), states, cov, rho)  # fmt: skip
     return states, cov, rho
+
+
+@njit(cache=True)
+def _unseen(tau, x, p, trusts, lead, walking, exponent, states, cov, rho):
+    """:func:`unseen_regions` in one compiled pass (a step has a few pedestrians)."""
+    for j in range(x.shape[0]):
+        t = max(tau[j], 0.0)
+        for a in range(4):
+            states[j, a] = x[j, a] + (t * x[j, a + 2] if a < 2 else 0.0)
+        # F P F' with F = [[I, t I], [0, I]]
+        for a in range(4):
+            for b in range(4):
+                v = p[j, a, b]
+                if a < 2:
+                    v += t * p[j, a + 2, b]
+                if b < 2:
+                    v += t * p[j, a, b + 2]
+                if a < 2 and b < 2:
+                    v += t * t * p[j, a + 2, b + 2]
+                cov[j, a, b] = v
+        theta = min(max(trusts[j], 0.0), 1.0)
+        rho[j] = walking * (1.0 - theta) ** exponent * (t + lead)

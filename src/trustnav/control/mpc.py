@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan
-from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
+from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _margins4, _quantile, uncertainty_margins
 from trustnav.control.caution import caution_bound, unseen_regions
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
@@ -445,15 +445,20 @@ class MpcController:
             states = covs = times = np.zeros(0)
         cov = np.asarray(covariances, dtype=float)
         shapes = (states.shape, covs.shape, times.shape)
-        finite = bool(np.isfinite(states).all() and np.isfinite(covs).all() and np.isfinite(times).all())
-        if shapes != ((n, 4), (n, 4, 4), (n,)) or cov.shape != (n, 4, 4) or not finite:
+        if (
+            shapes != ((n, 4), (n, 4, 4), (n,))
+            or cov.shape != (n, 4, 4)
+            or not math.isfinite(float(states.sum() + covs.sum() + times.sum()))
+        ):
             raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
                              f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
         lead = c.latency + c.horizon * c.dt
         tau = now - times
         bet, bet_cov, rho = unseen_regions(c.caution, tau, states, covs, tr, lead)
         pos = bet[:, :2] + bet[:, 2:] * c.latency  # where the latency compensation puts a pedestrian
-        m = uncertainty_margins(x[:2], pos, bet_cov, lead, c.confidence) + rho
+        m = np.empty(n)
+        _margins4(np.ascontiguousarray(x[:2]), pos, bet_cov, lead, _quantile(c.confidence), m)  # uncertainty_margins
+        m += rho
         use = (tau > 0) & (m < margins)
         if not use.any():
             return peds, vels, margins, covariances
