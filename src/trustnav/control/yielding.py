@@ -42,10 +42,13 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
-- **Room beside others too** (with ``time`` and ``safety_radius``): the car's centre on a side
-  of her must also be outside anyone else's region (their radius about their predicted place)
-  within both radii of her along the road; where such a region covers the nearest place, the place
-  moves past it, and the side has room if that place is still on the road. A crosser walking away to one side with a
+- **Room behind a crosser beside others too** (with ``time`` and ``safety_radius``): for a crosser
+  (lateral speed above ``crossing_speed``) the car's centre on a side of her must also be outside
+  anyone else's region (their radius about their predicted place) within both radii of her along
+  the road; where such a region covers the nearest place, the place moves past it, and the side has
+  room if that place is still on the road. (Standing pedestrians are judged one at a time, as
+  before: two on opposite kerbs whose regions meet are passed between by the barrier, relaxed and
+  reported, not waited for until their unseen regions stop growing.) A crosser walking away to one side with a
   bystander on the other kerb leaves a sliver the car cannot fit in: passing behind her there,
   the barrier's push from her growing region drove the car into the bystander's corner, where it
   stopped trapped (a bicycle cannot back out) until her track was dropped and it drove past her
@@ -291,7 +294,7 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 # the nearest place for the car's centre on each side of her, moved past anyone
                 # else's region there (beside her along the road: within both radii)
                 c_left, c_right = d + r, d - r
-                if joint:
+                if joint and (walks_left or walks_right):  # behind a crosser: where the car is sent
                     for _ in range(n_p):
                         moved = False
                         for i in range(n_p):
