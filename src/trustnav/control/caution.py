@@ -61,6 +61,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from trustnav.control._validate import require_positive
+from trustnav.control.barrier import _margins4
 
 __all__ = ["CautionConfig", "CautionDecision", "caution_bound", "reaction_time", "unseen_regions"]
 
@@ -200,3 +201,43 @@ def _unseen(tau, x, p, trusts, lead, walking, exponent, states, cov, rho):
                 cov[j, a, b] = v
         theta = min(max(trusts[j], 0.0), 1.0)
         rho[j] = walking * (1.0 - theta) ** exponent * (t + lead)
+
+
+@njit(cache=True)
+def _unseen_step(ego, now, times, x, p, trusts, lead, latency, walking, exponent, z, peds, vels, margins, cov):
+    """The controller's step of :func:`unseen_regions`: for each pedestrian last seen ``now -
+    times[j]`` > 0 s ago, the bet's place at ``now + latency`` (as the latency compensation puts
+    her), velocity, covariance and margin (:func:`~trustnav.control.barrier.uncertainty_margins`
+    over ``lead`` plus ``rho``) replace ``peds``, ``vels``, ``cov`` and ``margins`` where that margin
+    is below ``margins[j]``. Returns (finite, and the four, copied)."""
+    n = x.shape[0]
+    peds, vels, margins, cov = peds.copy(), vels.copy(), margins.copy(), cov.copy()
+    tau = np.empty(n)
+    for j in range(n):
+        tau[j] = now - times[j]
+        if not np.isfinite(tau[j]):
+            return False, peds, vels, margins, cov
+        for a in range(4):
+            if not np.isfinite(x[j, a]):
+                return False, peds, vels, margins, cov
+            for b in range(4):
+                if not np.isfinite(p[j, a, b]):
+                    return False, peds, vels, margins, cov
+    states, covs, rho = np.empty((n, 4)), np.empty((n, 4, 4)), np.empty(n)
+    _unseen(tau, x, p, trusts, lead, walking, exponent, states, covs, rho)
+    pos = np.empty((n, 2))
+    for j in range(n):
+        pos[j, 0] = states[j, 0] + states[j, 2] * latency
+        pos[j, 1] = states[j, 1] + states[j, 3] * latency
+    m = np.empty(n)
+    _margins4(ego, pos, covs, lead, z, m)
+    for j in range(n):
+        bet = m[j] + rho[j]
+        if tau[j] > 0.0 and bet < margins[j]:
+            peds[j, 0], peds[j, 1] = pos[j, 0], pos[j, 1]
+            vels[j, 0], vels[j, 1] = states[j, 2], states[j, 3]
+            margins[j] = bet
+            for a in range(4):
+                for b in range(4):
+                    cov[j, a, b] = covs[j, a, b]
+    return True, peds, vels, margins, cov

@@ -17,8 +17,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan
-from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _margins4, _quantile, uncertainty_margins
-from trustnav.control.caution import caution_bound, unseen_regions
+from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
+from trustnav.control.caution import _unseen_step, caution_bound
 from trustnav.control.costs import Cost, LaneTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -440,30 +440,23 @@ class MpcController:
         the tracker's; her position, velocity, margin and covariance replaced by it there."""
         c, n = self.config, len(peds)
         try:
-            states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
+            states, covs, times = (a if type(a) is np.ndarray and a.dtype == np.float64 else np.asarray(a, dtype=float)
+                                   for a in last_seen)  # fmt: skip
         except (TypeError, ValueError):
             states = covs = times = np.zeros(0)
         cov = np.asarray(covariances, dtype=float)
         shapes = (states.shape, covs.shape, times.shape)
-        if (
-            shapes != ((n, 4), (n, 4, 4), (n,))
-            or cov.shape != (n, 4, 4)
-            or not math.isfinite(float(states.sum() + covs.sum() + times.sum()))
-        ):
+        ok = shapes == ((n, 4), (n, 4, 4), (n,)) and cov.shape == (n, 4, 4)
+        if ok:  # in one compiled pass: the bet where its margin is below the tracker's (False: not finite)
+            cfg = c.caution
+            ok, peds, vels, margins, cov = _unseen_step(
+                np.ascontiguousarray(x[:2], dtype=float), float(now), times, states, covs, tr,
+                float(c.latency + c.horizon * c.dt), float(c.latency), float(cfg.walking_speed),
+                float(cfg.trust_exponent), _quantile(c.confidence), peds, vels, margins, cov,
+            )  # fmt: skip
+        if not ok:
             raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
                              f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
-        lead = c.latency + c.horizon * c.dt
-        tau = now - times
-        bet, bet_cov, rho = unseen_regions(c.caution, tau, states, covs, tr, lead)
-        pos = bet[:, :2] + bet[:, 2:] * c.latency  # where the latency compensation puts a pedestrian
-        m = np.empty(n)
-        _margins4(np.ascontiguousarray(x[:2]), pos, bet_cov, lead, _quantile(c.confidence), m)  # uncertainty_margins
-        m += rho
-        use = (tau > 0) & (m < margins)
-        if not use.any():
-            return peds, vels, margins, covariances
-        peds, vels, margins, cov = peds.copy(), vels.copy(), margins.copy(), cov.copy()
-        peds[use], vels[use], margins[use], cov[use] = pos[use], bet[use, 2:], m[use], bet_cov[use]
         return peds, vels, margins, cov
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
