@@ -129,3 +129,19 @@ def test_the_car_does_not_wait_long_for_a_crosser_it_can_no_longer_see():
     assert seen["time_to_goal"] <= true["time_to_goal"] + 1.5
     off = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution_occlusion=False))
     assert drive("perceived", off)["time_to_goal"] > true["time_to_goal"] + 2.0
+
+
+def test_a_remembered_crosser_still_walking_toward_the_lane_is_not_yet_clear_of_it():
+    """Seed 4, run 23 (10 frames/s): a slow texting crosser's track was dropped below the image 2.7 m
+    left of the lane's line, walking toward it; the memory, counting her clear of the line at R either
+    side, forgot her at once and the car drove into her way (1.21 m). She is clear once R past it."""
+    y = Yielder(YieldConfig())
+    none = np.zeros((0, 2))
+
+    def step(t, peds, vels):
+        return y.decide(np.zeros(2), 0.0, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 3.5),
+                        time=t, safety_radius=2.5, **ROAD)  # fmt: skip
+
+    assert step(0.0, np.array([[4.5, 2.7]]), np.array([[0.0, -0.5]])) is not None  # 2.7 m left, walking right
+    assert step(0.5, none, none) is not None  # dropped: still to cross the lane
+    assert step(10.0, none, none) is None  # 2.7 - 0.5 t <= -2.5 after 10.4 s; memory 8 s

@@ -38,7 +38,9 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   across the road (along it, a frame's estimate is mostly the monocular range's drift), and blocks
   while that prediction is ahead of the car and within R of the lane's line or of the line the car
   heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
-  she walks drives the other first), for at most ``memory`` s. A dropped track says that the camera
+  she walks drives the other first), for at most ``memory`` s. She is clear of a line only once R
+  past it the way she walks: a crosser whose track is dropped before she reaches the lane (a slow
+  one below the image) is still to cross it. A dropped track says that the camera
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
@@ -170,9 +172,11 @@ class Yielder:
             pos, vel, t0, along_sigma = self._memory
             pred = pos + vel * (float(time) - t0)
             near = float(safety_radius)
-            off_lane = abs(float((pred - road_start) @ road_normal) - d_lane) >= near
+            # clear of a line once R past it the way she walks (one still walking toward it is not)
+            off_lane = _past(float((pred - road_start) @ road_normal) - d_lane, float(vel @ road_normal), near)
             rel = pred - position
-            off_heading = abs(float(ahead[0] * rel[1] - ahead[1] * rel[0])) >= near
+            off_heading = _past(float(ahead[0] * rel[1] - ahead[1] * rel[0]),
+                                float(ahead[0] * vel[1] - ahead[1] * vel[0]), near)  # fmt: skip
             gone = ((off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
                     or float(time) - t0 > c.memory)  # fmt: skip
             dist = np.hypot(*(np.asarray(pedestrians, dtype=float).reshape(-1, 2) - pred).T) if n_real else None
@@ -232,6 +236,15 @@ class Yielder:
         else:
             note = f"yielding: waiting for {who}"
         return YieldDecision(stop, cap, j, note)
+
+
+def _past(offset: float, speed: float, near: float) -> bool:
+    """A remembered pedestrian ``offset`` m beside a line (signed), moving ``speed`` m/s across it,
+    is clear of it once ``near`` m past it the way she walks; one walking toward it is not (she has
+    yet to cross it). Without a speed across it, ``near`` either side."""
+    if speed == 0.0:
+        return abs(offset) >= near
+    return offset * math.copysign(1.0, speed) >= near
 
 
 @njit(cache=True)
