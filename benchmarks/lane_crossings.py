@@ -19,6 +19,13 @@ moved with her ahead within R of its heading line (:func:`stop_and_go`).
     python benchmarks/lane_crossings.py --caution off  # without the trust-aware speed bound
     python benchmarks/lane_crossings.py --seed 1       # 100 other worlds
     python benchmarks/lane_crossings.py --only 22 70 --set caution_unseen_frames=1
+    python benchmarks/lane_crossings.py --set caution_occlusion=false  # the tracker's regions alone
+    python benchmarks/lane_crossings.py --wait --rate 10   # the scenario's own attentive crossing, seeds 0-4
+
+``--wait`` drives the scenario file itself, the crosser attentive (``trustnav drive
+examples/scenarios/lane-crossing.toml --attentive --sensing keypoints --seed S``), with perceived and
+with true states, and prints each seed's time to goal: how long the car waits for a crosser it can no
+longer see (issue 34, item 5).
 """
 
 from __future__ import annotations
@@ -152,6 +159,20 @@ def brake_room(sc, r) -> tuple[float, float | None]:  # type: ignore[no-untyped-
     )
 
 
+def wait(base, rate: float | None, seeds: int) -> None:  # type: ignore[no-untyped-def]
+    """The scenario's own crossing, the crosser attentive, seeds 0..seeds-1: time to goal, closest
+    approach and seconds yielded, with perceived and with true states (module docstring)."""
+    print(f"(1-minute load average {os.getloadavg()[0]:.1f})")
+    for state in ("perceived", "true"):
+        out = []
+        for s in range(seeds):
+            m = run_drive(base, sensing="keypoints", seed=s, attentive=True, capture_rate=rate, state=state).metrics()
+            out.append(f"{m['time_to_goal']} s ({min(p['min_distance'] for p in m['pedestrians']):.2f} m, "
+                       f"yield {m['yield_s']} s, {m['margin_violations']} within R)")  # fmt: skip
+        print(f"attentive lane crossing, {state} states, {rate or base.camera.rate:g} frames/s, seeds 0-{seeds - 1}: "
+              + "; ".join(out))  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100)
@@ -162,16 +183,21 @@ def main() -> None:
     ap.add_argument("--set", nargs="*", default=[], help="[control] options, e.g. caution_pass_speed=3")
     ap.add_argument("--only", type=int, nargs="+", help="drive only these runs (their worlds as in the full set)")
     ap.add_argument("--json", help="write every run's summary to this file")
+    ap.add_argument("--wait", action="store_true", help="the scenario's own attentive crossing, seeds 0-4 (--runs)")
     args = ap.parse_args()
     base = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
-    sets: dict[str, float] = {}
+    if args.wait:
+        wait(base, args.rate, min(args.runs, 5))
+        return
+    sets: dict[str, float | bool] = {}
     for kv in args.set:  # checked once, before any drive: a bad option is one line naming it
         key, eq, value = kv.partition("=")
         try:
-            sets[key] = float(value) if eq else float("nan")
+            flag = {"true": True, "false": False}.get(value.lower())
+            sets[key] = flag if flag is not None else float(value) if eq else float("nan")
             dataclasses.replace(base.control, **sets)
         except (TypeError, ValueError) as exc:  # SchemaError is a ValueError
-            ap.error(f"--set {kv!r}: {exc} (expected [control] OPTION=NUMBER)")
+            ap.error(f"--set {kv!r}: {exc} (expected [control] OPTION=NUMBER, or true/false)")
     rng = np.random.default_rng(args.seed)
     rows = []
     for k in range(args.runs):

@@ -37,6 +37,18 @@ and as a hard bound on the bicycle's speed rows ``v(k+1) <= cap`` (lowered by at
 m/s^2 per step from the present speed, so a bound that appears below the speed brakes the car
 smoothly; the model's widening to the reachable speeds keeps the QP feasible). It never touches
 the CBF rows: the pedestrian's barrier, the road's and their relaxation are unchanged.
+
+**Unseen pedestrians** (``occlusion``; the caller gives each pedestrian's state and covariance at
+the last frame that observed her, and when: :func:`unseen_regions`). A tracker coasting a person
+the camera no longer sees (below the image in front of the car, beside it) grows her covariance
+by its walking model's random acceleration, so R plus her margin grows faster than she walks away
+and the car waits, or is trapped, for as long as the track lives. Trust makes the same bet here
+as above: over the ``tau`` s since she was last seen she keeps to her last estimated velocity
+(its uncertainty propagated, no process noise) and may leave that path by at most
+``rho = walking_speed * (1 - theta) ** trust_exponent * (tau + lead)``; the region used is that
+one where its margin (the estimate's plus ``rho``) is below the tracker's, the tracker's
+otherwise. A trusted crosser's region leaves the lane at her walking pace; an untrusted one's
+grows at up to walking speed, as the tracker's or faster.
 """
 
 from __future__ import annotations
@@ -49,8 +61,9 @@ from numba import njit
 from numpy.typing import NDArray
 
 from trustnav.control._validate import require_positive
+from trustnav.control.barrier import _margins4
 
-__all__ = ["CautionConfig", "CautionDecision", "caution_bound", "reaction_time"]
+__all__ = ["CautionConfig", "CautionDecision", "caution_bound", "reaction_time", "unseen_regions"]
 
 
 def reaction_time(camera_rate: float, confirm_frames: float = 2.0, perception_latency: float = 0.0,
@@ -73,7 +86,8 @@ class CautionConfig:
     step-out of an untrusted pedestrian), ``trust_exponent`` (2: the reach of trust 0.5 is a
     quarter of trust 0's), ``deceleration`` (4 m/s^2, below the vehicle's 6: the braking the bound
     counts on), ``pass_speed`` (4 m/s: the floor), ``ease`` (3 m/s^2: how fast a lower bound
-    brings the speed rows down)."""
+    brings the speed rows down), ``occlusion`` (True: an unseen pedestrian's region from her last
+    sighting, :func:`unseen_regions`; False: the tracker's alone)."""
 
     reaction: float = 2.15
     walking_speed: float = 1.4
@@ -82,10 +96,13 @@ class CautionConfig:
     pass_speed: float = 4.0
     ease: float = 3.0
     unseen: float = 0.0
+    occlusion: bool = True
 
     def __post_init__(self) -> None:
         names = ("reaction", "walking_speed", "trust_exponent", "deceleration", "pass_speed", "ease", "unseen")
         require_positive("caution", self, names, zero_ok=("reaction", "walking_speed", "pass_speed", "unseen"))
+        if not isinstance(self.occlusion, bool):
+            raise ValueError(f"caution occlusion must be true or false, got {self.occlusion!r}")
 
 
 @dataclass(frozen=True)
@@ -163,3 +180,87 @@ def _least_bound(px, py, hx, hy, peds, trusts, radii, t, b, reach_speed, exponen
         if best_j < 0 or v < best_v:
             best_v, best_j, best_reach, best_s = v, j, reach, s
     return best_v, best_j, best_reach, best_s
+
+
+def unseen_regions(
+    config: CautionConfig,
+    tau: NDArray[np.float64],
+    seen_states: NDArray[np.float64],
+    seen_covariances: NDArray[np.float64],
+    trusts: NDArray[np.float64],
+    lead: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Each pedestrian's region on the bet that she keeps to her last seen velocity (module
+    docstring, "Unseen pedestrians"): her state (N, 4) ``tau`` (N,) s after her last sighting
+    (``seen_states`` (N, 4), ``seen_covariances`` (N, 4, 4) of (x, y, v_x, v_y) then), propagated
+    at constant velocity without process noise, and the reach ``rho`` (N,) (m) she may have
+    strayed from it by ``tau + lead`` s, given her trust (N,). Returns (states, covariances, rho)."""
+    tau = np.ascontiguousarray(tau, dtype=float)
+    x = np.ascontiguousarray(seen_states, dtype=float)
+    p = np.ascontiguousarray(seen_covariances, dtype=float)
+    states, cov, rho = np.empty(x.shape), np.empty(p.shape), np.empty(tau.shape)
+    _unseen(tau, x, p, np.ascontiguousarray(trusts, dtype=float), float(lead), float(config.walking_speed),
+            float(config.trust_exponent), states, cov, rho)  # fmt: skip
+    return states, cov, rho
+
+
+@njit(cache=True)
+def _unseen(tau, x, p, trusts, lead, walking, exponent, states, cov, rho):
+    """:func:`unseen_regions` in one compiled pass (a step has a few pedestrians)."""
+    for j in range(x.shape[0]):
+        t = max(tau[j], 0.0)
+        for a in range(4):
+            states[j, a] = x[j, a] + (t * x[j, a + 2] if a < 2 else 0.0)
+        # F P F' with F = [[I, t I], [0, I]]
+        for a in range(4):
+            for b in range(4):
+                v = p[j, a, b]
+                if a < 2:
+                    v += t * p[j, a + 2, b]
+                if b < 2:
+                    v += t * p[j, a, b + 2]
+                if a < 2 and b < 2:
+                    v += t * t * p[j, a + 2, b + 2]
+                cov[j, a, b] = v
+        theta = min(max(trusts[j], 0.0), 1.0)
+        rho[j] = walking * (1.0 - theta) ** exponent * (t + lead)
+
+
+@njit(cache=True)
+def _unseen_step(ego, now, times, x, p, trusts, lead, latency, walking, exponent, z, peds, vels, margins, cov):
+    """The controller's step of :func:`unseen_regions`: for each pedestrian last seen ``now -
+    times[j]`` > 0 s ago, the bet's place at ``now + latency`` (as the latency compensation puts
+    her), velocity, covariance and margin (:func:`~trustnav.control.barrier.uncertainty_margins`
+    over ``lead`` plus ``rho``) replace ``peds``, ``vels``, ``cov`` and ``margins`` where that margin
+    is below ``margins[j]``. Returns (finite, and the four, copied)."""
+    n = x.shape[0]
+    peds, vels, margins, cov = peds.copy(), vels.copy(), margins.copy(), cov.copy()
+    tau = np.empty(n)
+    for j in range(n):
+        tau[j] = now - times[j]
+        if not np.isfinite(tau[j]):
+            return False, peds, vels, margins, cov
+        for a in range(4):
+            if not np.isfinite(x[j, a]):
+                return False, peds, vels, margins, cov
+            for b in range(4):
+                if not np.isfinite(p[j, a, b]):
+                    return False, peds, vels, margins, cov
+    states, covs, rho = np.empty((n, 4)), np.empty((n, 4, 4)), np.empty(n)
+    _unseen(tau, x, p, trusts, lead, walking, exponent, states, covs, rho)
+    pos = np.empty((n, 2))
+    for j in range(n):
+        pos[j, 0] = states[j, 0] + states[j, 2] * latency
+        pos[j, 1] = states[j, 1] + states[j, 3] * latency
+    m = np.empty(n)
+    _margins4(ego, pos, covs, lead, z, m)
+    for j in range(n):
+        bet = m[j] + rho[j]
+        if tau[j] > 0.0 and bet < margins[j]:
+            peds[j, 0], peds[j, 1] = pos[j, 0], pos[j, 1]
+            vels[j, 0], vels[j, 1] = states[j, 2], states[j, 3]
+            margins[j] = bet
+            for a in range(4):
+                for b in range(4):
+                    cov[j, a, b] = covs[j, a, b]
+    return True, peds, vels, margins, cov

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan, under_speed_cap
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
-from trustnav.control.caution import _least_bound, bound_constants, caution_bound, caution_note
+from trustnav.control.caution import _least_bound, _unseen_step, bound_constants, caution_bound, caution_note
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -225,6 +225,7 @@ class MpcController:
         trusts: ArrayLike,
         time: float | None = None,
         covariances: ArrayLike | None = None,
+        last_seen: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
     ) -> MpcSolution:
         """One MPC step from ego ``state`` with pedestrians (N_p, 2), velocities (N_p, 2) and
         trusts (N_p,) in [0, 1]. ``time`` (s): when the state was measured and the command will be
@@ -250,6 +251,8 @@ class MpcController:
             c = self.config
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
+            if last_seen is not None and c.caution is not None and c.caution.occlusion and len(peds):
+                peds, vels, margins, covariances = self._unseen(x, peds, vels, tr, margins, covariances, last_seen, now)
         detour, tracked = None, p.cost
         radii = None  # each pedestrian's R and margin, for the layers above the MPC (made once)
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
@@ -469,6 +472,32 @@ class MpcController:
         if bicycle:
             p.speed_cap = bound
         return detour or caution_note(found, float(tr[j]), ahead)
+
+    def _unseen(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
+        """Pedestrians seen last ``tau`` > 0 s ago: the region on trust's bet that each keeps to her
+        last seen velocity (:func:`~trustnav.control.caution.unseen_regions`: her estimate then,
+        propagated at that velocity, its margin plus the reach ``rho``) where its margin is below
+        the tracker's; her position, velocity, margin and covariance replaced by it there."""
+        c, n = self.config, len(peds)
+        try:
+            states, covs, times = (a if type(a) is np.ndarray and a.dtype == np.float64 else np.asarray(a, dtype=float)
+                                   for a in last_seen)  # fmt: skip
+        except (TypeError, ValueError):
+            states = covs = times = np.zeros(0)
+        cov = np.asarray(covariances, dtype=float)
+        shapes = (states.shape, covs.shape, times.shape)
+        ok = shapes == ((n, 4), (n, 4, 4), (n,)) and cov.shape == (n, 4, 4)
+        if ok:  # in one compiled pass: the bet where its margin is below the tracker's (False: not finite)
+            cfg = c.caution
+            ok, peds, vels, margins, cov = _unseen_step(
+                np.ascontiguousarray(x[:2], dtype=float), float(now), times, states, covs, tr,
+                float(c.latency + c.horizon * c.dt), float(c.latency), float(cfg.walking_speed),
+                float(cfg.trust_exponent), _quantile(c.confidence), peds, vels, margins, cov,
+            )  # fmt: skip
+        if not ok:
+            raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
+                             f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
+        return peds, vels, margins, cov
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays

@@ -38,10 +38,23 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   across the road (along it, a frame's estimate is mostly the monocular range's drift), and blocks
   while that prediction is ahead of the car and within R of the lane's line or of the line the car
   heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
-  she walks drives the other first), for at most ``memory`` s. A dropped track says that the camera
+  she walks drives the other first), for at most ``memory`` s. She is clear of a line only once R
+  past it the way she walks: a crosser whose track is dropped before she reaches the lane (a slow
+  one below the image) is still to cross it. A dropped track says that the camera
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
+- **Room behind a crosser beside others too** (with ``time`` and ``safety_radius``): for a crosser
+  (lateral speed above ``crossing_speed``) the car's centre on a side of her must also be outside
+  anyone else's region (their radius about their predicted place) within both radii of her along
+  the road; where such a region covers the nearest place, the place moves past it, and the side has
+  room if that place is still on the road. (Standing pedestrians are judged one at a time, as
+  before: two on opposite kerbs whose regions meet are passed between by the barrier, relaxed and
+  reported, not waited for until their unseen regions stop growing.) A crosser walking away to one side with a
+  bystander on the other kerb leaves a sliver the car cannot fit in: passing behind her there,
+  the barrier's push from her growing region drove the car into the bystander's corner, where it
+  stopped trapped (a bicycle cannot back out) until her track was dropped and it drove past her
+  within R. The car now waits until there is room for it between them.
 - **Released only clear of the line the car heads along** (with ``time`` and ``heading``): a crosser
   it yielded to at the last step and still sees (within ``rematch`` of her remembered prediction)
   keeps blocking, once the room test above would let the car pass behind her, while she is ahead
@@ -166,9 +179,11 @@ class Yielder:
             pos, vel, t0, along_sigma = self._memory
             pred = pos + vel * (float(time) - t0)
             near = float(safety_radius)
-            off_lane = abs(float((pred - road_start) @ road_normal) - d_lane) >= near
+            # clear of a line once R past it the way she walks (one still walking toward it is not)
+            off_lane = _past(float((pred - road_start) @ road_normal) - d_lane, float(vel @ road_normal), near)
             rel = pred - position
-            off_heading = abs(float(ahead[0] * rel[1] - ahead[1] * rel[0])) >= near
+            off_heading = _past(float(ahead[0] * rel[1] - ahead[1] * rel[0]),
+                                float(ahead[0] * vel[1] - ahead[1] * vel[0]), near)  # fmt: skip
             gone = ((off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
                     or float(time) - t0 > c.memory)  # fmt: skip
             dist = np.hypot(*(np.asarray(pedestrians, dtype=float).reshape(-1, 2) - pred).T) if n_real else None
@@ -195,7 +210,7 @@ class Yielder:
             np.ascontiguousarray(road_normal, dtype=float), float(left), float(right), s_car, float(c.lookahead),
             float(c.sample), float(c.crossing_speed), float(c.tolerance), float(c.clear_time), float(c.gap),
             max(float(speed), 0.1), cov, float(z), n_real, d_lane, np.ascontiguousarray(position, dtype=float),
-            np.ascontiguousarray(ahead, dtype=float), extra, held,
+            np.ascontiguousarray(ahead, dtype=float), extra, held, remember,
         )  # fmt: skip
         if remember and 0 <= j < n_real:
             # remembered as crossing: her velocity across the road only (along it, a frame's estimate
@@ -230,9 +245,18 @@ class Yielder:
         return YieldDecision(stop, cap, j, note)
 
 
+def _past(offset: float, speed: float, near: float) -> bool:
+    """A remembered pedestrian ``offset`` m beside a line (signed), moving ``speed`` m/s across it,
+    is clear of it once ``near`` m past it the way she walks; one walking toward it is not (she has
+    yet to cross it). Without a speed across it, ``near`` either side."""
+    if speed == 0.0:
+        return abs(offset) >= near
+    return offset * math.copysign(1.0, speed) >= near
+
+
 @njit(cache=True)
 def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, lookahead, sample, crossing, tol,
-              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra, held):  # fmt: skip
+              clear_time, gap, v, cov, z, n_real, d_lane, car, ahead, extra, held, joint):  # fmt: skip
     """The nearest stop (along the road) for a pedestrian who blocks the corridor ahead within the
     lookahead, and who it is ((0, -1): none); one compiled pass of :meth:`Yielder.decide`'s test:
     sampled every ``sample`` s at constant velocity, a pedestrian blocks where they are within their
@@ -242,10 +266,21 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
     none where ``cov`` is empty) toward the road's line, is skipped. Pedestrians from ``n_real`` on
     are remembered, not seen: they block within their radius of the lane's line (``d_lane`` from the
     road's line) or of the line the car heads along (``ahead``, through ``car``), and their stop lies
-    ``extra[j - n_real]`` further short (their remembered position's range error)."""
+    ``extra[j - n_real]`` further short (their remembered position's range error). ``joint``: a
+    side's room ends at the region of anyone else beside them along the road (module docstring)."""
     ts = np.arange(0.0, lookahead + 1e-9, sample)
     n_t = ts.shape[0]
     s = np.empty(n_t)
+    n_p = peds.shape[0]
+    d_all = np.empty((n_p, n_t))  # everyone's offset from the road's line and place along it, at
+    s_all = np.empty((n_p, n_t))  # their estimated velocity (``joint``: the room beside another)
+    if joint:
+        for i in range(n_p):
+            for k in range(n_t):
+                px = peds[i, 0] + vels[i, 0] * ts[k] - road_start[0]
+                py = peds[i, 1] + vels[i, 1] * ts[k] - road_start[1]
+                d_all[i, k] = px * normal[0] + py * normal[1]
+                s_all[i, k] = px * axis[0] + py * axis[1]
     best_stop, best_j = 0.0, -1
     for j in range(peds.shape[0]):
         r = radii[j]
@@ -276,8 +311,23 @@ def _blocking(peds, vels, radii, road_start, axis, normal, left, right, s_car, l
                 if h == 0:
                     s[k] = sk
                 d = px * normal[0] + py * normal[1]
-                room_left = (d + r <= left - tol) and not walks_left
-                room_right = (d - r >= -right + tol) and not walks_right
+                # the nearest place for the car's centre on each side of her, moved past anyone
+                # else's region there (beside her along the road: within both radii)
+                c_left, c_right = d + r, d - r
+                if joint and (walks_left or walks_right):  # behind a crosser: where the car is sent
+                    for _ in range(n_p):
+                        moved = False
+                        for i in range(n_p):
+                            if i != j and abs(s_all[i, k] - sk) < radii[i] + r:
+                                lo_i, hi_i = d_all[i, k] - radii[i], d_all[i, k] + radii[i]
+                                if lo_i < c_left < hi_i:
+                                    c_left, moved = hi_i, True
+                                if lo_i < c_right < hi_i:
+                                    c_right, moved = lo_i, True
+                        if not moved:
+                            break
+                room_left = (c_left <= left - tol) and not walks_left
+                room_right = (c_right >= -right + tol) and not walks_right
                 near = (d - r < left) and (d + r > -right)
                 # one it no longer sees (j >= n_real) blocks within r of the lane's line: the MPC,
                 # not knowing her, would not steer round her

@@ -95,6 +95,9 @@ class Observation:
     velocities: NDArray[np.float64]
     trusts: NDArray[np.float64]
     covariances: NDArray[np.float64] | None = None
+    #: with estimated states, each one's (x, y, v_x, v_y) (M, 4) and covariance (M, 4, 4) at the
+    #: last frame that observed it, and that frame's time (M,) (None: not known)
+    last_seen: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
 
 
 @dataclass(frozen=True)
@@ -203,9 +206,11 @@ class MpcPolicy:
 
     def step(self, observation: Observation) -> Decision:
         o = observation
-        sol = self.controller.step(
-            o.ego, o.positions, o.velocities, o.trusts, time=o.time if self.timed else None, covariances=o.covariances
-        )
+        extra: dict[str, object] = {"covariances": o.covariances}
+        if o.last_seen is not None:  # a controller that keeps an unseen pedestrian from her last sighting
+            extra["last_seen"] = o.last_seen
+        when = o.time if self.timed else None
+        sol = self.controller.step(o.ego, o.positions, o.velocities, o.trusts, time=when, **extra)
         self.last_solution = sol
         stats = StepStats(
             status=sol.status.value,

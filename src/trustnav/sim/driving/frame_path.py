@@ -166,11 +166,16 @@ class PerceivedPath(FramePath):
         tracker = spec.tracker(keypoints=keypoints)
         self.pedestrians = PedestrianEstimator(spec.localiser(keypoints), tracker, self.trust)
         self.ground_height = ground_height
+        # each live track's state and covariance at the last frame that observed it, and when
+        self._seen: dict[int, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
 
     def track(self, frame: Frame) -> TrackedFrame:
         seen = [SeenPerson(s.person, s.eye_contact, s.phone) for s in frame.people]
         ids = self.pedestrians.add_frame(frame.time, frame.camera, seen, self.ground_height, frame.to_scenario)
         tracks = tuple(self.pedestrians.tracker.predict(frame.time))
+        self._seen = {t.track_id: (t.mean.copy(), t.covariance.copy(), float(frame.time)) if t.last_seen >= frame.time
+                      else self._seen.get(t.track_id, (t.mean.copy(), t.covariance.copy(), float(t.last_seen)))
+                      for t in tracks}  # fmt: skip
         people = [
             replace(s, track_id=-1 if tid is None else tid, trust=None if tid is None else self.trust.trust(tid))
             for s, tid in zip(frame.people, ids, strict=True)
@@ -179,7 +184,12 @@ class PerceivedPath(FramePath):
 
     def controller_input(self, time: float, ego: NDArray[np.float64]) -> Observation:
         est = self.pedestrians.estimates(time)
-        return Observation(time, ego, est.positions, est.velocities, est.trusts, est.covariances)
+        n = len(est.states)
+        seen = [self._seen.get(s.track_id, (s.mean, s.covariance, float(time))) for s in est.states]
+        last = (np.array([a for a, _, _ in seen], dtype=float).reshape(n, 4),
+                np.array([b for _, b, _ in seen], dtype=float).reshape(n, 4, 4),
+                np.array([c for _, _, c in seen], dtype=float).reshape(n))  # fmt: skip
+        return Observation(time, ego, est.positions, est.velocities, est.trusts, est.covariances, last)
 
 
 class TruePath(FramePath):

@@ -151,7 +151,10 @@ class ControlSpec:
     the camera would show a step-out (``caution_confirm_frames`` camera periods plus the
     perception and command latencies and one control period), braking at
     ``caution_deceleration``; never below ``caution_pass_speed``; ``caution_unseen_frames`` camera
-    periods of walking counted whatever the trust (0: none; docs/controller.md)."""
+    periods of walking counted whatever the trust (0: none; docs/controller.md);
+    ``caution_occlusion``: a pedestrian the camera no longer sees is kept on trust's bet that she
+    keeps to her last seen velocity (:func:`~trustnav.control.caution.unseen_regions`) where that
+    region is narrower than the tracker's (false: the tracker's alone)."""
 
     rate: Annotated[float, Number(0, 1000, lo_open=True, unit=" Hz")] = 20.0
     dt: Annotated[float, Number(lo=0, lo_open=True, unit=" s")] = 0.08
@@ -175,6 +178,7 @@ class ControlSpec:
     caution_pass_speed: Annotated[float, Number(lo=0, unit=" m/s")] = 4.0
     caution_confirm_frames: Annotated[float, NON_NEGATIVE] = 2.0
     caution_unseen_frames: Annotated[float, NON_NEGATIVE] = 0.0
+    caution_occlusion: bool = True
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -195,6 +199,7 @@ class ControlSpec:
             deceleration=self.caution_deceleration,
             pass_speed=self.caution_pass_speed,
             unseen=self.caution_unseen_frames / camera_rate,
+            occlusion=self.caution_occlusion,
         )
 
     def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> MpcConfig:
