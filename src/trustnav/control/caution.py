@@ -227,25 +227,27 @@ def _unseen(tau, x, p, trusts, lead, walking, exponent, states, cov, rho):
 
 
 @njit(cache=True)
-def _unseen_step(ego, now, times, x, p, trusts, lead, latency, walking, exponent, z, peds, vels, margins, cov):
-    """The controller's step of :func:`unseen_regions`: for each pedestrian last seen ``now -
-    times[j]`` > 0 s ago, the bet's place at ``now + latency`` (as the latency compensation puts
-    her), velocity, covariance and margin (:func:`~trustnav.control.barrier.uncertainty_margins`
-    over ``lead`` plus ``rho``) replace ``peds``, ``vels``, ``cov`` and ``margins`` where that margin
-    is below ``margins[j]``. Returns (finite, and the four, copied)."""
+def _unseen_step(consts, times, x, p, trusts, peds, vels, margins, cov, out_peds, out_vels, out_margins, out_cov):
+    """The controller's step of :func:`unseen_regions`, ``consts`` = (ego x, ego y, now, lead,
+    latency, walking_speed, trust_exponent, z): for each pedestrian last seen ``now - times[j]`` >
+    0 s ago, the bet's place at ``now + latency`` (as the latency compensation puts her), velocity,
+    covariance and margin (:func:`~trustnav.control.barrier.uncertainty_margins` over ``lead``
+    plus ``rho``) replace ``peds``, ``vels``, ``cov`` and ``margins`` in their copies ``out_*``
+    where that margin is below ``margins[j]``. Returns how many were replaced (-1: an input is
+    not finite)."""
     n = x.shape[0]
-    peds, vels, margins, cov = peds.copy(), vels.copy(), margins.copy(), cov.copy()
+    now, lead, latency, walking, exponent, z = consts[2], consts[3], consts[4], consts[5], consts[6], consts[7]
     tau = np.empty(n)
     for j in range(n):
         tau[j] = now - times[j]
         if not np.isfinite(tau[j]):
-            return False, peds, vels, margins, cov
+            return -1
         for a in range(4):
             if not np.isfinite(x[j, a]):
-                return False, peds, vels, margins, cov
+                return -1
             for b in range(4):
                 if not np.isfinite(p[j, a, b]):
-                    return False, peds, vels, margins, cov
+                    return -1
     states, covs, rho = np.empty((n, 4)), np.empty((n, 4, 4)), np.empty(n)
     _unseen(tau, x, p, trusts, lead, walking, exponent, states, covs, rho)
     pos = np.empty((n, 2))
@@ -253,14 +255,23 @@ def _unseen_step(ego, now, times, x, p, trusts, lead, latency, walking, exponent
         pos[j, 0] = states[j, 0] + states[j, 2] * latency
         pos[j, 1] = states[j, 1] + states[j, 3] * latency
     m = np.empty(n)
-    _margins4(ego, pos, covs, lead, z, m)
+    _margins4(consts[:2], pos, covs, lead, z, m)
+    used = 0
     for j in range(n):
         bet = m[j] + rho[j]
         if tau[j] > 0.0 and bet < margins[j]:
-            peds[j, 0], peds[j, 1] = pos[j, 0], pos[j, 1]
-            vels[j, 0], vels[j, 1] = states[j, 2], states[j, 3]
-            margins[j] = bet
+            used += 1
+            out_peds[j, 0], out_peds[j, 1] = pos[j, 0], pos[j, 1]
+            out_vels[j, 0], out_vels[j, 1] = states[j, 2], states[j, 3]
+            out_margins[j] = bet
             for a in range(4):
                 for b in range(4):
-                    cov[j, a, b] = covs[j, a, b]
-    return True, peds, vels, margins, cov
+                    out_cov[j, a, b] = covs[j, a, b]
+        else:
+            out_peds[j, 0], out_peds[j, 1] = peds[j, 0], peds[j, 1]
+            out_vels[j, 0], out_vels[j, 1] = vels[j, 0], vels[j, 1]
+            out_margins[j] = margins[j]
+            for a in range(4):
+                for b in range(4):
+                    out_cov[j, a, b] = cov[j, a, b]
+    return used

@@ -125,6 +125,10 @@ class MpcController:
         )  # fmt: skip
         self._state_shape = (self.model.nx,)
         self._caution_constants = () if self.config.caution is None else bound_constants(self.config.caution)
+        c = self.config  # the unseen bet's constants: (ego x, ego y, now) written each step
+        self._unseen_constants = np.zeros(8) if c.caution is None else np.array(
+            [0.0, 0.0, 0.0, c.latency + c.horizon * c.dt, c.latency, c.caution.walking_speed,
+             c.caution.trust_exponent, _quantile(c.confidence)])  # fmt: skip
         self._capped: tuple | None = None  # (cost, v_max, that cost capped to v_max): caution's last
         self._warm_up()
         self.reset()
@@ -478,25 +482,29 @@ class MpcController:
         last seen velocity (:func:`~trustnav.control.caution.unseen_regions`: her estimate then,
         propagated at that velocity, its margin plus the reach ``rho``) where its margin is below
         the tracker's; her position, velocity, margin and covariance replaced by it there."""
-        c, n = self.config, len(peds)
+        n = len(peds)
         try:
-            states, covs, times = (a if type(a) is np.ndarray and a.dtype == np.float64 else np.asarray(a, dtype=float)
-                                   for a in last_seen)  # fmt: skip
+            states, covs, times = last_seen
+            if type(states) is not np.ndarray or type(covs) is not np.ndarray or type(times) is not np.ndarray:
+                states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
         except (TypeError, ValueError):
             states = covs = times = np.zeros(0)
-        cov = np.asarray(covariances, dtype=float)
+        cov = covariances if type(covariances) is np.ndarray else np.asarray(covariances, dtype=float)
+        used = -1
+        if states.shape == (n, 4) and covs.shape == (n, 4, 4) and times.shape == (n,) and cov.shape == (n, 4, 4):
+            k = self._unseen_constants  # in one compiled pass
+            k[0], k[1], k[2] = x[0], x[1], now
+            out = np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty((n, 4, 4))
+            c_ = np.ascontiguousarray
+            used = _unseen_step(c_(k), c_(times, dtype=float), c_(states, dtype=float), c_(covs, dtype=float),
+                                c_(tr, dtype=float), c_(peds, dtype=float), c_(vels, dtype=float),
+                                c_(margins, dtype=float), c_(cov, dtype=float), *out)  # fmt: skip
         shapes = (states.shape, covs.shape, times.shape)
-        ok = shapes == ((n, 4), (n, 4, 4), (n,)) and cov.shape == (n, 4, 4)
-        if ok:  # in one compiled pass: the bet where its margin is below the tracker's (False: not finite)
-            cfg = c.caution
-            ok, peds, vels, margins, cov = _unseen_step(
-                np.ascontiguousarray(x[:2], dtype=float), float(now), times, states, covs, tr,
-                float(c.latency + c.horizon * c.dt), float(c.latency), float(cfg.walking_speed),
-                float(cfg.trust_exponent), _quantile(c.confidence), peds, vels, margins, cov,
-            )  # fmt: skip
-        if not ok:
+        if used < 0:
             raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
                              f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
+        if used:  # the bet where its margin is below the tracker's (in copies: the caller's arrays stay)
+            peds, vels, margins, cov = out
         return peds, vels, margins, cov
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
