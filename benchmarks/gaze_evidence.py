@@ -160,7 +160,7 @@ def _face_mesh(frame: np.ndarray, person: object, face: object, graphs: object, 
     found."""
     import dataclasses
 
-    from trustnav.perception.face import FaceEyeContact, _crop, head_box
+    from trustnav.perception.face import FaceEyeContact, _crop, head_box, nearest_face
     from trustnav.perception.mediapipe_backend import protobuf_warning_ignored
 
     head = head_box(person)
@@ -173,12 +173,7 @@ def _face_mesh(frame: np.ndarray, person: object, face: object, graphs: object, 
         dets = [d for d in (graphs.detector.process({"image": crop}).detections or []) if d.score[0] >= 0.5]
     if not dets:
         return None
-
-    def dist(d: object) -> float:
-        b = d.location_data.relative_bounding_box
-        return math.hypot(b.xmin + b.width / 2 - 0.5, b.ymin + b.height / 2 - 0.5)
-
-    det = min(dets, key=dist)
+    det = nearest_face(dets)
     b, kps = det.location_data.relative_bounding_box, det.location_data.relative_keypoints
     rot = -math.atan2(-(kps[1].y - kps[0].y) * n, (kps[1].x - kps[0].x) * n)
     box = (x0 + b.xmin * n / scale + shift, y0 + b.ymin * n / scale, b.width * n / scale, b.height * n / scale)

@@ -335,6 +335,16 @@ class _FaceGraphs:
     rect: Any
 
 
+def nearest_face(detections: Sequence[Any]) -> Any:
+    """The face detection nearest the head crop's centre: the person's own, not a neighbour's."""
+
+    def dist(dt: Any) -> float:
+        b = dt.location_data.relative_bounding_box
+        return math.hypot(b.xmin + b.width / 2 - 0.5, b.ymin + b.height / 2 - 0.5)
+
+    return min(detections, key=dist)
+
+
 class FaceEyeContact:
     """Face detection + face mesh on each near person's head -> :class:`FaceResult` per person.
 
@@ -499,13 +509,7 @@ class FaceEyeContact:
             dets = [dt for dt in dets if dt.score[0] >= cfg.min_detection]
             if not dets:
                 return None
-
-            # the face nearest the crop's centre (the person's own, not a neighbour's)
-            def dist(dt: Any) -> float:
-                b = dt.location_data.relative_bounding_box
-                return math.hypot(b.xmin + b.width / 2 - 0.5, b.ymin + b.height / 2 - 0.5)
-
-            det = min(dets, key=dist)
+            det = nearest_face(dets)
             b = det.location_data.relative_bounding_box
             kps = det.location_data.relative_keypoints
             n = cfg.crop_px
