@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 
@@ -185,6 +186,10 @@ def main() -> None:
     ap.add_argument("--json", help="write every run's summary to this file")
     ap.add_argument("--wait", action="store_true", help="the scenario's own attentive crossing, seeds 0-4 (--runs)")
     args = ap.parse_args()
+    if args.runs < 1:
+        ap.error(f"--runs {args.runs}: expected a whole number of runs >= 1")
+    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
+        ap.error(f"--rate {args.rate}: expected camera frames per second > 0")
     base = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
     if args.wait:
         wait(base, args.rate, min(args.runs, 5))

@@ -145,3 +145,21 @@ def test_a_remembered_crosser_still_walking_toward_the_lane_is_not_yet_clear_of_
     assert step(0.0, np.array([[4.5, 2.7]]), np.array([[0.0, -0.5]])) is not None  # 2.7 m left, walking right
     assert step(0.5, none, none) is not None  # dropped: still to cross the lane
     assert step(10.0, none, none) is None  # 2.7 - 0.5 t <= -2.5 after 10.4 s; memory 8 s
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [(["--wait", "--rate", "0"], "--rate 0.0: expected camera frames per second > 0"),
+     (["--runs", "0"], "--runs 0: expected a whole number of runs >= 1")],
+)  # fmt: skip
+def test_the_lane_crossing_benchmark_refuses_a_bad_rate_or_run_count_by_name(repo_root, args, named):
+    """benchmarks/lane_crossings.py: a camera rate of 0 or no runs is one parser line naming the
+    option and what it expects (before, --rate 0 ran at the scenario's rate, --runs 0 printed an
+    empty table)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(repo_root / "benchmarks" / "lane_crossings.py"), *args],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert out.returncode == 2
+    assert named in out.stderr.strip().splitlines()[-1]
