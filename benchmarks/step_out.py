@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -170,6 +171,10 @@ def main() -> None:
     ap.add_argument("--figure", type=Path, default=None, help="only draw speed over time (seed 0) to this PNG")
     ap.add_argument("--solve-time", action="store_true", help="only the median step time, caution on and off")
     args = ap.parse_args()
+    if args.seeds < 1:
+        ap.error(f"--seeds {args.seeds}: expected a whole number of seeds >= 1")
+    if not (math.isfinite(args.rate) and args.rate > 0):
+        ap.error(f"--rate {args.rate}: expected camera frames per second > 0")
     if args.solve_time:
         solve_time()
         return

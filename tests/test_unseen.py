@@ -148,18 +148,20 @@ def test_a_remembered_crosser_still_walking_toward_the_lane_is_not_yet_clear_of_
 
 
 @pytest.mark.parametrize(
-    ("args", "named"),
-    [(["--wait", "--rate", "0"], "--rate 0.0: expected camera frames per second > 0"),
-     (["--runs", "0"], "--runs 0: expected a whole number of runs >= 1")],
+    ("script", "args", "named"),
+    [("lane_crossings.py", ["--wait", "--rate", "0"], "--rate 0.0: expected camera frames per second > 0"),
+     ("lane_crossings.py", ["--runs", "0"], "--runs 0: expected a whole number of runs >= 1"),
+     ("step_out.py", ["--rate", "0"], "--rate 0.0: expected camera frames per second > 0"),
+     ("step_out.py", ["--seeds", "0"], "--seeds 0: expected a whole number of seeds >= 1")],
 )  # fmt: skip
-def test_the_lane_crossing_benchmark_refuses_a_bad_rate_or_run_count_by_name(repo_root, args, named):
-    """benchmarks/lane_crossings.py: a camera rate of 0 or no runs is one parser line naming the
-    option and what it expects (before, --rate 0 ran at the scenario's rate, --runs 0 printed an
-    empty table)."""
+def test_the_speed_benchmarks_refuse_a_bad_rate_or_count_by_name(repo_root, script, args, named):
+    """benchmarks/lane_crossings.py and step_out.py: a camera rate of 0 or no runs is one parser
+    line naming the option and what it expects (before: --rate 0 ran, lane_crossings.py --runs 0
+    printed an empty table, step_out.py --seeds 0 a traceback)."""
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, str(repo_root / "benchmarks" / "lane_crossings.py"), *args],
+    out = subprocess.run([sys.executable, str(repo_root / "benchmarks" / script), *args],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert out.returncode == 2
     assert named in out.stderr.strip().splitlines()[-1]
