@@ -270,7 +270,8 @@ class MpcController:
         held_stop = None
         if self._yielder is not None and (len(peds) or (self.config.caution is not None and self._yielder.remembers)):
             road, lane = self._road, p.cost
-            radii = self._radii(len(peds), margins)
+            if radii is None:  # (else the route layer's, made this step from the same margins)
+                radii = self._radii(len(peds), margins)
             # with caution, the velocity's uncertainty too (caution off: the paper's controller)
             cov = None
             if self.config.caution is not None and covariances is not None:  # position-only covariances: no velocity
