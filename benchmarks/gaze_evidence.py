@@ -81,6 +81,10 @@ def main() -> None:
     ap.add_argument("--rendered", type=Path, help="folder holding the rendered sets' frames (trust_eval.py --keep)")
     ap.add_argument("--side", type=int, default=256, help="side of the upscaled face crop (px, default 256)")
     args = ap.parse_args()
+    if args.rendered is not None and not (args.rendered / "rendered").is_dir():
+        ap.error(f"--rendered {str(args.rendered)!r}: expected the folder trust_eval.py --keep wrote (with rendered/)")
+    if args.side < 64:
+        ap.error(f"--side {args.side}: expected the upscaled face crop's side in px, >= 64")
     warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype")
     seq = te.SHARED / "data" / "sequences"
     sets = {"walk_a": seq / "walk_a", "phone_a": seq / "phone_a", "street": te.SHARED / "data" / "street_images"}

@@ -320,3 +320,20 @@ def test_eyes_turned_back_to_the_camera_count_and_eyes_turned_away_do_not(
         turn = new.gaze_yaw - new.yaw  # the eyes' turn in the head, the head's turn: opposite when looking
         assert (turn * new.yaw < 0) == looking and abs(turn) >= 5, (who, new.yaw, turn)
         assert (new.probability >= 0.5) == looking and (old.probability >= 0.5) != looking, (who, new, old)
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [(["--rendered", "/nonexistent"], "--rendered '/nonexistent': expected the folder trust_eval.py --keep wrote"),
+     (["--side", "0"], "--side 0: expected the upscaled face crop's side in px, >= 64")],
+)  # fmt: skip
+def test_the_gaze_evidence_script_refuses_a_bad_folder_or_crop_side_by_name(repo_root, args, named):
+    """benchmarks/gaze_evidence.py: a missing rendered folder (was an OpenCV warning and 'cannot
+    read' a frame) or a crop too small is one parser line naming the option."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(repo_root / "benchmarks" / "gaze_evidence.py"), *args],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert out.returncode == 2
+    assert named in out.stderr.strip().splitlines()[-1]
