@@ -125,7 +125,7 @@ def figure(path: Path, seed: int = 0) -> None:
         print(f"{label:40s} closest {m['pedestrians'][0]['min_distance']:.2f} m  goal {m['time_to_goal']} s")
     step = base.pedestrians[0].behaviour.start_time  # type: ignore[union-attr]
     with styled():
-        fig, (ax, bx) = new_figure((7.0, 5.2), 2, 1, sharex=True)
+        fig, (ax, bx) = new_figure((7.0, 6.0), 2, 1, sharex=True)
         for (label, r, m), style in zip(runs, ("-", ":", "--", "-."), strict=True):
             ax.plot(r.times, r.ego[:, 3], style, label=f"{label}: {m['pedestrians'][0]['min_distance']:.2f} m")
             bx.plot(r.times, r.distances[:, 0], style)
@@ -137,7 +137,8 @@ def figure(path: Path, seed: int = 0) -> None:
         bx.set_ylabel("distance to her (m)")
         bx.set_xlabel("time (s)")
         bx.set_ylim(0, 20)
-        legend(ax, loc="lower right", title="run: closest approach")
+        # above the plot: inside, it hid the runs' later speeds
+        legend(ax, loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=2, title="run: closest approach to her")
         fig.savefig(path)
     print(f"wrote {path}")
 
