@@ -22,11 +22,13 @@ street) and the rendered ones apart; then the real people's scores one by one. `
 also shrinks the street images so that each labelled person is T px tall (INTER_AREA; keypoints
 scaled from the full-size fit) and prints, per T, each phone user's "head or wrists" score beside
 the largest of the non-users': the person height from which a phone the detector sees stands out.
+``--placements 9``: each square's score is the mean over 9 placements 4 % of the height apart.
 
     python benchmarks/phone_detector_evidence.py                       # the real sets
     python benchmarks/phone_detector_evidence.py --rendered /tmp/te    # also the rendered sets, from
                                                                        # trust_eval.py --keep /tmp/te
     python benchmarks/phone_detector_evidence.py --resolution          # also the street images shrunk
+    python benchmarks/phone_detector_evidence.py --placements 9        # each square's mean over 9 placements
 """
 
 from __future__ import annotations
@@ -68,24 +70,32 @@ def regions(keypoints: np.ndarray, confidences: np.ndarray, height: float) -> di
     return out
 
 
-def phone_scores(detector: object, frame: np.ndarray, kp: np.ndarray, c: np.ndarray, height: float) -> dict:
+def phone_scores(
+    detector: object, frame: np.ndarray, kp: np.ndarray, c: np.ndarray, height: float, placements: int = 1
+) -> dict:
     """A person's phone score under each scheme (NaN where it has no square) and ``runs``, the
-    network runs it took; ``kp``, ``c``: COCO keypoints and confidences, ``height``: the box's (px)."""
+    network runs it took; ``kp``, ``c``: COCO keypoints and confidences, ``height``: the box's (px).
+    ``placements`` 9: each square's score is the mean over it moved by -1, 0, +1 x 4 % of ``height``
+    each way (one placement's score moves with the crop), else 1: the square as placed."""
     out: dict[str, float] = {}
     runs = 0
+    steps = [(0, 0)] if placements == 1 else [(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)]
     for name, squares in regions(kp, c, height).items():
         best = np.nan
-        for square in squares:
-            centres, scores = detector.class_scores(frame, square)
-            runs += 1
-            if name == "hands and face":
-                wrists = [kp[i] for i in WRIST if c[i] >= 0.3 and np.isfinite(kp[i]).all()]
-                near = np.zeros(len(scores), bool)
-                for w in wrists:
-                    near |= np.hypot(*(centres - w).T) < 0.15 * height
-                value = float(scores[near].max()) if near.any() else 0.0
-            else:
-                value = float(scores.max())
+        for x, y, side in squares:
+            values = []
+            for i, j in steps:
+                centres, scores = detector.class_scores(frame, (x + i * 0.04 * height, y + j * 0.04 * height, side))
+                runs += 1
+                if name == "hands and face":
+                    wrists = [kp[k] for k in WRIST if c[k] >= 0.3 and np.isfinite(kp[k]).all()]
+                    near = np.zeros(len(scores), bool)
+                    for w in wrists:
+                        near |= np.hypot(*(centres - w).T) < 0.15 * height
+                    values.append(float(scores[near].max()) if near.any() else 0.0)
+                else:
+                    values.append(float(scores.max()))
+            value = float(np.mean(values))
             best = value if not np.isfinite(best) else max(best, value)
         out[name] = best
     finite = [v for v in (out["head"], out["wrists"]) if np.isfinite(v)]
@@ -111,6 +121,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     ap.add_argument("--rendered", type=Path, help="folder holding rendered/ and rendered_heldout/ frames")
     ap.add_argument("--resolution", action="store_true", help="also the street images shrunk (module docstring)")
+    ap.add_argument(
+        "--placements",
+        type=int,
+        choices=(1, 9),
+        default=1,
+        help="1: each square as placed; 9: the mean over it moved by 4 %% of the person's height each way",
+    )
     args = ap.parse_args(argv)
     if args.rendered is not None:
         missing = [n for n in ("rendered", "rendered_heldout") if not (args.rendered / n).is_dir()]
@@ -152,7 +169,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         continue
                     height = float(person.bbox[3] - person.bbox[1])
                     t0 = time.perf_counter()
-                    s = phone_scores(detector, frame, person.keypoints, person.confidences, height)
+                    s = phone_scores(detector, frame, person.keypoints, person.confidences, height, args.placements)
                     seconds += time.perf_counter() - t0
                     runs += s.pop("runs")
                     s["posture"] = float(geometry(frame, person))
@@ -203,7 +220,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                     full = cv2.imread(str(r["path"]))[:, :, ::-1]
                     cache[key] = np.ascontiguousarray(cv2.resize(full, None, fx=k, fy=k, interpolation=cv2.INTER_AREA))
                 p = r["person"]
-                s = phone_scores(detector, cache[key], p.keypoints * k, p.confidences, r["height"] * k)
+                s = phone_scores(detector, cache[key], p.keypoints * k, p.confidences, r["height"] * k, args.placements)
                 got.append((r["phone"], s["head or wrists"], r["id"]))
             by_user = {i: v for y, v, i in got if y}
             others = [(v, i) for y, v, i in got if not y]
