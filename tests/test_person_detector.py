@@ -111,6 +111,54 @@ def test_the_detector_boxes_the_walkers_of_a_real_frame():
 
 
 @needs_model
+def test_class_scores_find_the_phone_held_at_a_mouth_and_not_on_the_others():
+    """The cell-phone score on squares around each head of crossing.jpg (mean over 9 placements 4 % of
+    the person's height apart: one placement's score moves 0.1-0.6 with the crop): the older woman
+    speaking into the phone at her mouth stands out from every other person of the photo, and the
+    anchor that sees it lies at her mouth, in frame pixels (benchmarks/phone_detector_evidence.py)."""
+    import json
+
+    import cv2
+
+    frame = cv2.imread(str(SHARED / "data" / "street_images" / "crossing.jpg"))[:, :, ::-1].copy()
+    labels = Path(__file__).resolve().parents[1] / "benchmarks" / "data" / "labels" / "street.json"
+    people = json.loads(labels.read_text())["frames"]["crossing.jpg"]["people"]
+    d = det.PersonDetector()
+    mean, where = {}, {}
+    for p in people:
+        x1, y1, x2, y2 = p["bbox"]
+        h = y2 - y1
+        runs = [
+            d.class_scores(frame, ((x1 + x2) / 2 + i * 0.04 * h, y1 + (0.15 + j * 0.04) * h, 0.45 * h))
+            for i in (-1, 0, 1)
+            for j in (-1, 0, 1)
+        ]
+        mean[p["id"]] = float(np.mean([s.max() for _, s in runs]))
+        centres, scores = max(runs, key=lambda r: r[1].max())
+        where[p["id"]] = (centres[scores.argmax()], p["bbox"])
+    phone = [k for k in mean if "phone held at the mouth" in k]
+    assert len(phone) == 1
+    others = max(v for k, v in mean.items() if k != phone[0])
+    assert mean[phone[0]] > 0.25 and mean[phone[0]] > 2 * others
+    (x, y), (x1, y1, x2, y2) = where[phone[0]]
+    assert x1 < x < x2 and y1 < y < y1 + 0.3 * (y2 - y1)  # at the head and hand, not on the body below
+
+
+@needs_model
+def test_class_scores_reject_a_class_outside_coco_and_an_empty_square():
+    d = det.PersonDetector()
+    frame = np.zeros((64, 64, 3), np.uint8)
+    for bad in (80, -1, 2.5, True):
+        with pytest.raises(ValueError, match="COCO class index 0-79"):
+            d.class_scores(frame, (32, 32, 32), bad)
+    for region in ((32, 32, 4), (np.nan, 32, 32)):
+        with pytest.raises(ValueError, match="side >= 8 px"):
+            d.class_scores(frame, region)
+    centres, scores = d.class_scores(frame, (0, 0, 40))  # half outside the frame: the detector's grey
+    assert centres.shape == (3549, 2) and scores.shape == (3549,) and np.all((scores >= 0) & (scores <= 1))
+
+
+@needs_model
 def test_the_input_shaped_to_the_frame_gives_the_square_inputs_boxes():
     """The release's graph read with its input declared 416 x 416 again is the same model to the bit;
     shaped to a 640 x 480 frame (416 x 320, no grey quarter) it gives the square input's boxes."""
@@ -302,3 +350,17 @@ def test_estimate_reports_the_boxes_it_turned_down(sequences, looking_weights, o
     assert rejected and all({"sequence", "frame", "bbox", "score", "reason"} <= set(r) for r in rejected)
     assert all(r["reason"] and len(r["bbox"]) == 4 and 0 < r["score"] <= 1 for r in rejected)
     assert f"{len(rejected)} detector boxes rejected" in capsys.readouterr().out
+
+
+def test_the_phone_detector_evidence_script_refuses_a_rendered_folder_without_the_sets(repo_root, tmp_path):
+    """benchmarks/phone_detector_evidence.py --rendered DIR needs DIR/rendered and DIR/rendered_heldout
+    (trust_eval.py --keep DIR): one parser line naming the option and what is missing."""
+    import subprocess
+    import sys
+
+    (tmp_path / "rendered").mkdir()
+    script = repo_root / "benchmarks" / "phone_detector_evidence.py"
+    out = subprocess.run([sys.executable, str(script), "--rendered", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert out.returncode == 2
+    assert f"--rendered {tmp_path}: no rendered_heldout/ folder" in out.stderr.strip().splitlines()[-1]

@@ -38,6 +38,7 @@ from trustnav.perception.types import check_frame
 __all__ = [
     "MODEL_NAME",
     "ONNXRUNTIME_VERSION",
+    "PHONE_CLASS",
     "YOLOX_SHA256",
     "YOLOX_URL",
     "PersonDetector",
@@ -52,6 +53,9 @@ MODEL_HINT = f"pass --detector-model FILE (Python: PersonDetector(FILE)) or set 
 ONNXRUNTIME_VERSION = "1.23.2"
 #: COCO's class index of a person in the detector's 80 scores.
 PERSON_CLASS = 0
+#: COCO's class index of a cell phone (``PersonDetector.class_scores``: image evidence of phone use).
+PHONE_CLASS = 67
+N_CLASSES = 80
 STRIDES = (8, 16, 32)
 PAD_VALUE = 114
 
@@ -222,6 +226,45 @@ class PersonDetector:
         idx = idx.reshape(-1)
         idx = idx[np.argsort(-scores[idx], kind="stable")]
         return boxes[idx], scores[idx]
+
+    def class_scores(
+        self, frame: NDArray[np.uint8], region: tuple[float, float, float], class_index: int = PHONE_CLASS
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """One COCO class's score at every anchor of the network run on a square of ``frame``.
+
+        ``region`` = (centre x, centre y, side) in frame pixels: the square is cut from the frame
+        (outside it the detector's grey), resized (bicubic when enlarged) to the network's square
+        input and run once. Returns (centres (A, 2) of the anchors' boxes in frame pixels, scores
+        (A,) = objectness x class score), in anchor order, no threshold and no NMS: the evidence for
+        an object of that class anywhere in the square (e.g. a phone near a person's hands, issue 35;
+        docs/perception.md). ValueError for a class outside COCO's 80 or a side under 8 px."""
+        import cv2
+
+        frame = check_frame(frame)
+        if isinstance(class_index, bool) or not isinstance(class_index, (int, np.integer)):
+            raise ValueError(f"class_index must be a COCO class index 0-{N_CLASSES - 1}, got {class_index!r}")
+        if not 0 <= int(class_index) < N_CLASSES:
+            raise ValueError(f"class_index must be a COCO class index 0-{N_CLASSES - 1}, got {class_index!r}")
+        cx, cy, side = (float(v) for v in region)
+        if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(side)) or side < 8:
+            raise ValueError(f"region must be (centre x, centre y, side >= 8 px), finite, got {region!r}")
+        s = round(side)
+        x0, y0 = round(cx - s / 2), round(cy - s / 2)
+        h, w = frame.shape[:2]
+        crop = np.full((s, s, 3), PAD_VALUE, dtype=np.uint8)
+        a, b, c, d = max(x0, 0), max(y0, 0), min(x0 + s, w), min(y0 + s, h)
+        if c > a and d > b:
+            crop[b - y0 : d - y0, a - x0 : c - x0] = frame[b:d, a:c]
+        n = self.model_size
+        session, grid, stride = self._session_for((n, n))
+        interp = cv2.INTER_CUBIC if s < n else cv2.INTER_AREA
+        image = cv2.resize(crop, (n, n), interpolation=interp)[:, :, ::-1]  # RGB -> BGR
+        out = session.run(None, {self._input: image.transpose(2, 0, 1)[None].astype(np.float32)})[0][0]
+        if out.ndim != 2 or out.shape != (len(grid), 85):
+            raise ValueError(f"person detector model {self.path}: output {out.shape}, expected ({len(grid)}, 85)")
+        scores = out[:, 4].astype(np.float64) * out[:, 5 + int(class_index)]
+        centres = (out[:, :2].astype(np.float64) + grid) * stride * (s / n) + np.array([x0, y0], dtype=np.float64)
+        return centres, scores
 
     def _window(
         self, frame: NDArray[np.uint8], win: tuple[int, int, int, int]
