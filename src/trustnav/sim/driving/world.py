@@ -255,15 +255,6 @@ KEYPOINT_ERROR_SHARED = 1.0
 # of a stride (WorldTrackerConfig.pose_change). Keypoint sensing has no repeated errors: 0.
 RENDER_POSE_CHANGE = 0.03
 KEYPOINT_POSE_CHANGE = 0.0
-# where the detector puts a person's centre line on rendered frames (issue 34 item 4, sixth pass):
-# its u's spread about the body's axis by 0.010-0.012 of the person's height
-# (benchmarks/data/keypoint_calibration.json), and the truth's error across the line of sight is
-# about 1 cm; LocaliserConfig's defaults (0.02 and 1 cm) made the rendered placements' region about
-# twice too wide across the line of sight (across rms 0.44-0.83 of sigma, docs/perceived.md).
-# Keypoint sensing keeps the defaults: narrowing its bearing moved its range through the fit's chi^2
-# and broke two of the Cases' claims (fifth pass).
-RENDER_LATERAL_SIGMA = 0.01
-RENDER_BODY_SIGMA = 0.005
 
 
 @dataclass(frozen=True)
@@ -346,14 +337,11 @@ class SensingSpec:
     def localiser(self, keypoints: bool = False) -> LocaliserConfig:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
         error model draws no per-person bias of the feet: ``foot_sigma`` 0; rendered frames through
-        the detector: the measured spread, ``LocaliserConfig.foot_sigma``, and the detector's
-        centre line, :data:`RENDER_LATERAL_SIGMA` and :data:`RENDER_BODY_SIGMA`)."""
+        the detector: the measured spread, ``LocaliserConfig.foot_sigma``)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
-        if keypoints:
-            return replace(cfg, foot_sigma=0.0)
-        return replace(cfg, lateral_sigma=RENDER_LATERAL_SIGMA, body_sigma=RENDER_BODY_SIGMA)
+        return replace(cfg, foot_sigma=0.0) if keypoints else cfg
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
