@@ -21,11 +21,14 @@ their own sigma (rms; 1 for a calibrated region), and the track's median walking
     python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3
     python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3 --save r.pkl
     python benchmarks/region_breakdown.py --case case-1 --load r.pkl   # replay only, no driving
+    python benchmarks/region_breakdown.py --case case-1 --load r.pkl --set lateral_sigma=0.02 error_shared=0.5
 
 ``--save`` writes the recorded drives (pickle: the frames' people, cameras and the truth), so that a
 model change is replayed on the same frames in seconds (``replay`` with ``dataclasses.replace`` of
 the localiser's and tracker's configurations) instead of re-rendering them (a rendered drive at 10
 frames/s takes minutes). A replay is open loop: the car's path is the recorded drive's.
+``--set KEY=VALUE ...`` replays a candidate: each key a field of ``LocaliserConfig`` or
+``WorldTrackerConfig``, over the sensing's own (every ablation on top of it).
 """
 
 from __future__ import annotations
@@ -45,8 +48,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from perceived_drive import _frame_errors, varied
-from trustnav.perception.localisation import GroundLocaliser, chi2_90
-from trustnav.perception.world_tracking import WorldTracker
+from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig, chi2_90
+from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
 from trustnav.sim.driving import frame_path
 from trustnav.sim.driving.episode import run_drive, street_of
 from trustnav.sim.driving.world import load_drive_scenario
@@ -95,12 +98,13 @@ def drive(case: str, seed: int, att, rate: float | None, render: bool) -> dict:
     return {"scenario": sc, "att": att, "frames": frames, "truth": truth, "keypoints": not render, "inside": inside}
 
 
-def replay(rec: dict, ablation: dict) -> dict[int, list[tuple]]:
+def replay(rec: dict, ablation: dict, localiser: dict | None = None) -> dict[int, list[tuple]]:
     """Localiser and tracker over the recorded frames: per pedestrian index, per frame that updated
     its track, (track inside, raw inside, track along, track across, raw along, raw across, walking
-    probability), errors whitened by each one's own sigma along and across the line of sight."""
+    probability), errors whitened by each one's own sigma along and across the line of sight.
+    ``ablation``: tracker fields replaced; ``localiser``: localiser fields replaced."""
     sc = rec["scenario"]
-    loc = GroundLocaliser(sc.sensing.localiser(rec["keypoints"]))
+    loc = GroundLocaliser(dataclasses.replace(sc.sensing.localiser(rec["keypoints"]), **(localiser or {})))
     trk = WorldTracker(dataclasses.replace(sc.sensing.tracker(rec["keypoints"]), **ablation))
     ground = street_of(sc).ground_height
     out: dict[int, list[tuple]] = {}
@@ -147,7 +151,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render", action="store_true", help="rendered frames on varied worlds (slow)")
     ap.add_argument("--save", type=Path, help="write the recorded drives to this file (pickle) for --load")
     ap.add_argument("--load", type=Path, help="replay drives recorded by --save instead of driving")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="replay with these LocaliserConfig / WorldTrackerConfig fields replaced")  # fmt: skip
     args = ap.parse_args(argv)
+    loc_set, trk_set = {}, {}
+    loc_fields = {f.name for f in dataclasses.fields(LocaliserConfig)}
+    trk_fields = {f.name for f in dataclasses.fields(WorldTrackerConfig)}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        try:
+            number = float(value)
+        except ValueError:
+            ap.error(f"--set {item!r}: expected KEY=NUMBER")
+        if key in loc_fields:
+            loc_set[key] = number
+        elif key in trk_fields:
+            trk_set[key] = int(number) if key == "confirm_hits" else number
+        else:
+            ap.error(f"--set {item!r}: {key!r} is no field of LocaliserConfig or WorldTrackerConfig")
+    try:
+        LocaliserConfig(**loc_set)
+        WorldTrackerConfig(**trk_set)
+    except (TypeError, ValueError) as exc:
+        ap.error(f"--set: {exc}")
     if not 1 <= args.seeds <= 200:
         ap.error(f"--seeds must be in [1, 200], got {args.seeds}")
     t0 = time.perf_counter()
@@ -174,11 +200,11 @@ def main(argv: list[str] | None = None) -> int:
             pickle.dump(recs, fh)
     print(f"{args.case}, {'render' if args.render else 'keypoints'}, {args.rate or 'scenario'} frames/s, seeds "
           f"{args.first_seed}-{args.first_seed + args.seeds - 1}; drives {time.perf_counter() - t0:.0f} s, "
-          f"load {os.getloadavg()[0]:.1f}")  # fmt: skip
+          f"load {os.getloadavg()[0]:.1f}" + (f"; replayed with {' '.join(args.set)}" if args.set else ""))  # fmt: skip
     for name, ablation in ABLATIONS.items():
         rows: dict[tuple, list] = {}
         for rec in recs:
-            for j, r in replay(rec, ablation).items():
+            for j, r in replay(rec, {**trk_set, **ablation}, loc_set).items():
                 rows.setdefault(
                     ("run " + {True: "attentive", False: "distracted", None: "both"}[rec["att"]], j), []
                 ).extend(r)

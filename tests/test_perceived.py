@@ -574,6 +574,14 @@ def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root, tmp_path,
     assert sum(line.startswith("as is: track inside") for line in out) == 2
     first, second = (i for i, line in enumerate(out) if line.startswith("as is: track inside"))
     assert out[first] == out[second]  # the replay of the loaded recording is the recorded drive's
+    # --set replays a candidate: a localiser field reaches the localiser (a wider body, wider regions)
+    wide = region_breakdown.replay(rec, {}, {"body_sigma": 0.5})
+    assert sum(r[1] for rs in wide.values() for r in rs) >= sum(r[1] for r in rows)
+    assert np.mean([abs(r[5]) for rs in wide.values() for r in rs]) < np.mean([abs(r[5]) for r in rows])
+    for bad in (["--set", "foo=1"], ["--set", "gate=-1"], ["--set", "gate=x"]):
+        with pytest.raises(SystemExit):
+            region_breakdown.main(["--load", str(path), *bad])
+        assert "--set" in capsys.readouterr().err
     (tmp_path / "bad.pkl").write_text("not a recording")
     with pytest.raises(SystemExit):
         region_breakdown.main(["--load", str(tmp_path / "bad.pkl")])
