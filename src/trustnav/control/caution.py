@@ -275,3 +275,24 @@ def _unseen_step(consts, times, x, p, trusts, peds, vels, margins, cov, out_peds
                 for b in range(4):
                     out_cov[j, a, b] = cov[j, a, b]
     return used
+
+
+@njit(cache=True)
+def _caution_step(k, px, py, now, hx, hy, times, x, p, trusts, peds, vels, margins, cov,
+                  out_peds, out_vels, out_margins, out_cov, out_radii):  # fmt: skip
+    """A bicycle controller's caution for the step in one compiled pass (a step's few pedestrians:
+    one call instead of several, each of whose dispatch costs more than its arithmetic): the unseen
+    bet of :func:`_unseen_step` (``k`` its constants; the car at (px, py) and the time ``now`` are
+    written here) into ``out_*``; each pedestrian's radius ``out_radii``, R (``k[8]``) plus her
+    margin; and the least speed bound of :func:`_least_bound` along the unit heading (hx, hy)
+    (``k[9:15]``: :func:`bound_constants`). Returns (pedestrians replaced, -1 where an input is not
+    finite; then :func:`_least_bound`'s bound, index, r + rho and metres ahead)."""
+    k[0], k[1], k[2] = px, py, now
+    used = _unseen_step(k, times, x, p, trusts, peds, vels, margins, cov, out_peds, out_vels, out_margins, out_cov)
+    if used < 0:
+        return used, math.inf, -1, 0.0, 0.0
+    for j in range(peds.shape[0]):
+        out_radii[j] = k[8] + out_margins[j]
+    v, j, reach, s = _least_bound(px, py, hx, hy, out_peds, trusts, out_radii, k[9], k[10], k[11], k[12], k[13],
+                                  k[14])  # fmt: skip
+    return used, v, j, reach, s

@@ -18,7 +18,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from trustnav.control._kernels import shift_plan, under_speed_cap
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
-from trustnav.control.caution import _least_bound, _unseen_step, bound_constants, caution_bound, caution_note
+from trustnav.control.caution import (
+    _caution_step,
+    _least_bound,
+    _unseen_step,
+    bound_constants,
+    caution_bound,
+    caution_note,
+)
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -125,10 +132,14 @@ class MpcController:
         )  # fmt: skip
         self._state_shape = (self.model.nx,)
         self._caution_constants = () if self.config.caution is None else bound_constants(self.config.caution)
-        c = self.config  # the unseen bet's constants: (ego x, ego y, now) written each step
-        self._unseen_constants = np.zeros(8) if c.caution is None else np.array(
+        c = self.config  # the unseen bet's constants: (ego x, ego y, now) written each step; then R and the bound's
+        self._unseen_constants = np.zeros(15) if c.caution is None else np.array(
             [0.0, 0.0, 0.0, c.latency + c.horizon * c.dt, c.latency, c.caution.walking_speed,
-             c.caution.trust_exponent, _quantile(c.confidence)])  # fmt: skip
+             c.caution.trust_exponent, _quantile(c.confidence), c.safety_radius, *self._caution_constants])  # fmt: skip
+        # a bicycle's unseen bet, radii and speed bound in one compiled call (_caution_pass), into
+        # arrays kept for each number of pedestrians
+        self._fused_caution = c.caution is not None and c.caution.occlusion and type(self.model) is KinematicBicycle
+        self._caution_buffers: dict[int, tuple] = {}
         self._capped: tuple | None = None  # (cost, v_max, that cost capped to v_max): caution's last
         self._warm_up()
         self.reset()
@@ -149,6 +160,12 @@ class MpcController:
         if self.config.caution is not None:  # and caution's
             caution_bound(self.config.caution, x[:2], np.array([1.0, 0.0]), np.ones((1, 2)), np.zeros(1), np.ones(1))
             under_speed_cap(np.zeros((1, 2)), 0.0, 1.0, -1.0, 1.0)
+            if self._fused_caution:  # then it compiles nothing more: other dtypes and layouts are converted
+                one, cov = np.ones((1, 2)), np.zeros((1, 4, 4))
+                _caution_step(self._unseen_constants.copy(), 0.0, 0.0, 0.0, 1.0, 0.0, np.zeros(1), np.zeros((1, 4)),
+                              cov, np.ones(1), one, one, np.zeros(1), cov, *self._buffers(1))  # fmt: skip
+                if _caution_step.signatures:
+                    _caution_step.disable_compile()
         p._qp_structs = None  # no warm start from this stand-in problem
         p.set_stage(x, np.zeros((0, 2)), None, [])
 
@@ -251,14 +268,22 @@ class MpcController:
             x, peds = self._compensate(x, peds, vels, velocities is not None, now)
         p = self.problem
         margins = None
+        radii = None  # each pedestrian's R and margin, for the layers above the MPC (made once)
+        bound = None  # a bicycle's caution: (speed bound, whose, metres ahead), found with the unseen bet
         if covariances is not None:
             c = self.config
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
             if last_seen is not None and c.caution is not None and c.caution.occlusion and len(peds):
-                peds, vels, margins, covariances = self._unseen(x, peds, vels, tr, margins, covariances, last_seen, now)
+                if self._fused_caution:
+                    peds, vels, margins, covariances, radii, bound = self._caution_pass(
+                        x, peds, vels, tr, margins, covariances, last_seen, now
+                    )
+                else:
+                    peds, vels, margins, covariances = self._unseen(
+                        x, peds, vels, tr, margins, covariances, last_seen, now
+                    )
         detour, tracked = None, p.cost
-        radii = None  # each pedestrian's R and margin, for the layers above the MPC (made once)
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
             radii = self._radii(len(peds), margins)
             speed = float(np.hypot(*self._last_control[:2]))
@@ -292,7 +317,7 @@ class MpcController:
                 p.cost = _revised(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
         if self.config.caution is not None:  # caution: the speed bound of who might step out
-            detour = self._caution(x, peds, tr, margins, radii, detour)
+            detour = self._caution(x, peds, tr, margins, radii, detour, bound)
             if held_stop is not None and type(self.model) is KinematicBicycle:
                 # a yield is a stop: its cap bounds the speed rows too (lowered by at most ``ease``
                 # per step), so no barrier's push (an unseen bystander's growing region) creeps the
@@ -431,10 +456,11 @@ class MpcController:
             detour=None if dl is None else dl.note,
         )
 
-    def _caution(self, x, peds, tr, margins, radii, detour: str | None) -> str | None:
+    def _caution(self, x, peds, tr, margins, radii, detour: str | None, found=None) -> str | None:
         """Set this step's caution (:mod:`~trustnav.control.caution`): the reference speed the cost
         tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
-        present speed by at most ``ease`` per step). Returns the step's note."""
+        present speed by at most ``ease`` per step). Returns the step's note. ``found``: the bound
+        :meth:`_caution_pass` found this step, (bound, index, metres ahead) (None: found here)."""
         p, cfg = self.problem, self.config.caution
         p.speed_cap = math.inf
         if not len(peds):
@@ -455,11 +481,14 @@ class MpcController:
             heading = heading / n
             hx, hy = float(heading[0]), float(heading[1])
             speed = float(np.hypot(*self._last_control[:2]))
-        if radii is None:  # (else the radii the yielding layer made this step: the same)
-            radii = self._radii(len(peds), margins)
-        # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
-        found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
-                                          np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
+        if found is not None:
+            found, j, ahead = found
+        else:
+            if radii is None:  # (else the radii the yielding layer made this step: the same)
+                radii = self._radii(len(peds), margins)
+            # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
+            found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
+                                              np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
         if j < 0:
             return detour
         # the speed rows and the reference the cost tracks get the same bound (a reference above
@@ -507,6 +536,47 @@ class MpcController:
         if used:  # the bet where its margin is below the tracker's (in copies: the caller's arrays stay)
             peds, vels, margins, cov = out
         return peds, vels, margins, cov
+
+    def _buffers(self, n: int) -> tuple:
+        """The arrays :meth:`_caution_pass` writes for ``n`` pedestrians (positions, velocities,
+        margins, covariances, radii), made once for each ``n``."""
+        out = self._caution_buffers.get(n)
+        if out is None:
+            out = self._caution_buffers[n] = (np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty((n, 4, 4)),
+                                              np.empty(n))  # fmt: skip
+        return out
+
+    def _caution_pass(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
+        """A bicycle's :meth:`_unseen` and the speed bound of :meth:`_caution` in one compiled call
+        (:func:`~trustnav.control.caution._caution_step`): the step's pedestrians, velocities,
+        margins, covariances and radii (R plus margin) after the unseen bet, in the controller's
+        arrays (rewritten at the next step: the problem's, and the layers', for this step only), and
+        the speed bound (bound, index, metres ahead; index -1: none)."""
+        n = len(peds)
+        try:
+            states, covs, times = last_seen
+            if type(states) is not np.ndarray or type(covs) is not np.ndarray or type(times) is not np.ndarray:
+                states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
+        except (TypeError, ValueError):
+            states = covs = times = np.zeros(0)
+        cov = covariances if type(covariances) is np.ndarray else np.asarray(covariances, dtype=float)
+        used = -1
+        if states.shape == (n, 4) and covs.shape == (n, 4, 4) and times.shape == (n,) and cov.shape == (n, 4, 4):
+            out = self._buffers(n)
+            yaw = float(x[2])
+            args = (times, states, covs, tr, peds, vels, margins, cov)
+            try:  # float64 C arrays, as the step makes them and a caller gives them
+                used, found, j, _, ahead = _caution_step(self._unseen_constants, x[0], x[1], now, math.cos(yaw),
+                                                         math.sin(yaw), *args, *out)  # fmt: skip
+            except TypeError:  # (another dtype or layout: the kernel compiles no variant)
+                args = tuple(np.ascontiguousarray(a, dtype=float) for a in args)
+                used, found, j, _, ahead = _caution_step(self._unseen_constants, x[0], x[1], now, math.cos(yaw),
+                                                         math.sin(yaw), *args, *out)  # fmt: skip
+        if used < 0:
+            shapes = (states.shape, covs.shape, times.shape)
+            raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
+                             f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
+        return *out, (found, j, ahead)
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays
