@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control._kernels import shift_plan, under_speed_cap
+from trustnav.control._kernels import shift_plan, shift_under_speed_cap, under_speed_cap
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
 from trustnav.control.caution import (
     _caution_step,
@@ -141,6 +141,7 @@ class MpcController:
         self._fused_caution = c.caution is not None and c.caution.occlusion and type(self.model) is KinematicBicycle
         self._caution_buffers: dict[int, tuple] = {}
         self._capped: tuple | None = None  # (cost, v_max, that cost capped to v_max): caution's last
+        self._ease_step = 0.0 if c.caution is None else c.caution.ease * c.dt  # the speed rows' most lowering a step
         self._warm_up()
         self.reset()
 
@@ -160,10 +161,11 @@ class MpcController:
         if self.config.caution is not None:  # and caution's
             caution_bound(self.config.caution, x[:2], np.array([1.0, 0.0]), np.ones((1, 2)), np.zeros(1), np.ones(1))
             under_speed_cap(np.zeros((1, 2)), 0.0, 1.0, -1.0, 1.0)
+            shift_under_speed_cap(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), 0.0, 1.0, -1.0, 1.0)
             if self._fused_caution:  # then it compiles nothing more: other dtypes and layouts are converted
                 one, cov = np.ones((1, 2)), np.zeros((1, 4, 4))
                 _caution_step(self._unseen_constants.copy(), 0.0, 0.0, 0.0, 1.0, 0.0, np.zeros(1), np.zeros((1, 4)),
-                              cov, np.ones(1), one, one, np.zeros(1), cov, *self._buffers(1))  # fmt: skip
+                              cov, np.ones(1), one, one, np.zeros(1), cov, self._buffers(1)[0])  # fmt: skip
                 if _caution_step.signatures:
                     _caution_step.disable_compile()
         p._qp_structs = None  # no warm start from this stand-in problem
@@ -329,11 +331,20 @@ class MpcController:
         finally:
             p.cost = tracked
         shifted = None
+        capped = p.speed_cap < math.inf  # caution: start the SQP inside its speed rows (its merit counts CBF rows only)
         if self._plan is not None:  # the previous plan shifted by one step, its last input held
             shifted = np.empty(self._plan.shape)
-            shift_plan(self._plan, shifted)
-        u0 = p.initial_guess() if shifted is None else shifted
-        if p.speed_cap < math.inf:  # caution: start the SQP inside its speed rows (its merit counts CBF rows only)
+            if capped and type(self.model) is KinematicBicycle:  # and capped, in one call
+                u0, m = np.empty(shifted.shape), self.model
+                shift_under_speed_cap(self._plan, shifted, u0, float(x[3]), min(m.speed_max, p.speed_cap),
+                                      float(m.accel_min), self.config.dt)  # fmt: skip
+                capped = False
+            else:
+                shift_plan(self._plan, shifted)
+                u0 = shifted
+        else:
+            u0 = p.initial_guess()
+        if capped:
             u0 = self._under_speed_cap(u0, float(x[3]))
         # deterministic: the solver's iteration budget alone bounds the step (no wall clock)
         deadline = None if self.config.deterministic else max(self.config.step_deadline - (_wall() - t0), 0.0)
@@ -461,8 +472,13 @@ class MpcController:
         tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
         present speed by at most ``ease`` per step). Returns the step's note. ``found``: the bound
         :meth:`_caution_pass` found this step, (bound, index, metres ahead) (None: found here)."""
-        p, cfg = self.problem, self.config.caution
+        p = self.problem
         p.speed_cap = math.inf
+        if found is not None:  # (a bicycle's)
+            found, j, ahead = found
+            if j < 0:
+                return detour
+            return self._capped_to(found, float(x[3]), True, detour, float(tr[j]), ahead)
         if not len(peds):
             return detour
         bicycle = type(self.model) is KinematicBicycle
@@ -481,19 +497,22 @@ class MpcController:
             heading = heading / n
             hx, hy = float(heading[0]), float(heading[1])
             speed = float(np.hypot(*self._last_control[:2]))
-        if found is not None:
-            found, j, ahead = found
-        else:
-            if radii is None:  # (else the radii the yielding layer made this step: the same)
-                radii = self._radii(len(peds), margins)
-            # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
-            found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
-                                              np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
+        if radii is None:  # (else the radii the yielding layer made this step: the same)
+            radii = self._radii(len(peds), margins)
+        # caution_bound's compiled pass, without its wrapper's checks (the step's arrays are checked)
+        found, j, _, ahead = _least_bound(float(x[0]), float(x[1]), hx, hy, np.ascontiguousarray(peds),
+                                          np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
         if j < 0:
             return detour
+        return self._capped_to(found, speed, bicycle, detour, float(tr[j]), ahead)
+
+    def _capped_to(self, found: float, speed: float, bicycle: bool, detour: str | None, trust: float, ahead: float):
+        """:meth:`_caution`'s bound ``found`` (m/s), set by a pedestrian of ``trust`` ``ahead`` metres
+        ahead, applied at the car's ``speed``; returns the step's note."""
+        p = self.problem
         # the speed rows and the reference the cost tracks get the same bound (a reference above
         # the rows would pull the SQP's merit against them), lowered by at most ``ease`` per step
-        bound = max(found, speed - cfg.ease * self.config.dt) if bicycle else found
+        bound = max(found, speed - self._ease_step) if bicycle else found
         cost = p.cost
         ref = getattr(cost, "reference", None)
         if ref is not None and hasattr(ref, "v_max"):
@@ -505,7 +524,7 @@ class MpcController:
                 p.cost = last[2]
         if bicycle:
             p.speed_cap = bound
-        return detour or caution_note(found, float(tr[j]), ahead)
+        return detour or caution_note(found, trust, ahead)
 
     def _unseen(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
         """Pedestrians seen last ``tau`` > 0 s ago: the region on trust's bet that each keeps to her
@@ -538,12 +557,15 @@ class MpcController:
         return peds, vels, margins, cov
 
     def _buffers(self, n: int) -> tuple:
-        """The arrays :meth:`_caution_pass` writes for ``n`` pedestrians (positions, velocities,
-        margins, covariances, radii), made once for each ``n``."""
+        """The array :meth:`_caution_pass` writes for ``n`` pedestrians, and its views: positions,
+        velocities, margins, covariances and radii (made once for each ``n``)."""
         out = self._caution_buffers.get(n)
         if out is None:
-            out = self._caution_buffers[n] = (np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty((n, 4, 4)),
-                                              np.empty(n))  # fmt: skip
+            flat = np.empty(22 * n)
+            out = self._caution_buffers[n] = (
+                flat, flat[: 2 * n].reshape(n, 2), flat[2 * n : 4 * n].reshape(n, 2), flat[4 * n : 5 * n],
+                flat[5 * n : 21 * n].reshape(n, 4, 4), flat[21 * n :],
+            )  # fmt: skip
         return out
 
     def _caution_pass(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
@@ -553,30 +575,31 @@ class MpcController:
         arrays (rewritten at the next step: the problem's, and the layers', for this step only), and
         the speed bound (bound, index, metres ahead; index -1: none)."""
         n = len(peds)
-        try:
-            states, covs, times = last_seen
-            if type(states) is not np.ndarray or type(covs) is not np.ndarray or type(times) is not np.ndarray:
-                states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
-        except (TypeError, ValueError):
-            states = covs = times = np.zeros(0)
-        cov = covariances if type(covariances) is np.ndarray else np.asarray(covariances, dtype=float)
+        out = self._caution_buffers.get(n) or self._buffers(n)
+        yaw = float(x[2])
+        hx, hy, k = math.cos(yaw), math.sin(yaw), self._unseen_constants
         used = -1
-        if states.shape == (n, 4) and covs.shape == (n, 4, 4) and times.shape == (n,) and cov.shape == (n, 4, 4):
-            out = self._buffers(n)
-            yaw = float(x[2])
-            args = (times, states, covs, tr, peds, vels, margins, cov)
-            try:  # float64 C arrays, as the step makes them and a caller gives them
-                used, found, j, _, ahead = _caution_step(self._unseen_constants, x[0], x[1], now, math.cos(yaw),
-                                                         math.sin(yaw), *args, *out)  # fmt: skip
-            except TypeError:  # (another dtype or layout: the kernel compiles no variant)
-                args = tuple(np.ascontiguousarray(a, dtype=float) for a in args)
-                used, found, j, _, ahead = _caution_step(self._unseen_constants, x[0], x[1], now, math.cos(yaw),
-                                                         math.sin(yaw), *args, *out)  # fmt: skip
-        if used < 0:
-            shapes = (states.shape, covs.shape, times.shape)
-            raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
-                             f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
-        return *out, (found, j, ahead)
+        try:  # float64 C arrays, as the step makes them and a caller gives them
+            states, covs, times = last_seen
+            used, found, j, _, ahead = _caution_step(k, x[0], x[1], now, hx, hy, times, states, covs, tr, peds, vels,
+                                                     margins, covariances, out[0])  # fmt: skip
+        except (TypeError, ValueError):
+            pass
+        if used < 0:  # other types or layouts converted (the kernel compiles no variant); shapes checked
+            try:
+                states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
+            except (TypeError, ValueError):
+                states = covs = times = np.zeros(0)
+            cov = np.asarray(covariances, dtype=float)
+            if states.shape == (n, 4) and covs.shape == (n, 4, 4) and times.shape == (n,) and cov.shape == (n, 4, 4):
+                arrays = (times, states, covs, tr, peds, vels, margins, cov)
+                args = (np.ascontiguousarray(a, dtype=float) for a in arrays)
+                used, found, j, _, ahead = _caution_step(k, x[0], x[1], now, hx, hy, *args, out[0])
+            if used < 0:
+                shapes = (states.shape, covs.shape, times.shape)
+                raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
+                                 f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
+        return out[1], out[2], out[3], out[4], out[5], (found, j, ahead)
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays
