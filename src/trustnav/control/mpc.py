@@ -86,9 +86,9 @@ def _revised(obj, **changes):  # type: ignore[no-untyped-def]
     if type(obj) not in _CHECK_ONLY:
         return replace(obj, **changes)
     new = object.__new__(type(obj))
-    new.__dict__.update(obj.__dict__)
-    for name, value in changes.items():
-        object.__setattr__(new, name, value)
+    fields = obj.__dict__.copy()
+    fields.update(changes)
+    object.__setattr__(new, "__dict__", fields)  # (one dict, not a __setattr__ per change)
     return new
 
 
