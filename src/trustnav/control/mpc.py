@@ -576,12 +576,12 @@ class MpcController:
         the speed bound (bound, index, metres ahead; index -1: none)."""
         n = len(peds)
         out = self._caution_buffers.get(n) or self._buffers(n)
-        yaw = float(x[2])
+        px, py, yaw, _ = x.tolist()  # (Python floats: numba reads them faster than numpy's)
         hx, hy, k = math.cos(yaw), math.sin(yaw), self._unseen_constants
         used = -1
         try:  # float64 C arrays, as the step makes them and a caller gives them
             states, covs, times = last_seen
-            used, found, j, _, ahead = _caution_step(k, x[0], x[1], now, hx, hy, times, states, covs, tr, peds, vels,
+            used, found, j, _, ahead = _caution_step(k, px, py, now, hx, hy, times, states, covs, tr, peds, vels,
                                                      margins, covariances, out[0])  # fmt: skip
         except (TypeError, ValueError):
             pass
@@ -594,7 +594,7 @@ class MpcController:
             if states.shape == (n, 4) and covs.shape == (n, 4, 4) and times.shape == (n,) and cov.shape == (n, 4, 4):
                 arrays = (times, states, covs, tr, peds, vels, margins, cov)
                 args = (np.ascontiguousarray(a, dtype=float) for a in arrays)
-                used, found, j, _, ahead = _caution_step(k, x[0], x[1], now, hx, hy, *args, out[0])
+                used, found, j, _, ahead = _caution_step(k, px, py, now, hx, hy, *args, out[0])
             if used < 0:
                 shapes = (states.shape, covs.shape, times.shape)
                 raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
