@@ -140,7 +140,7 @@ class MpcController:
         # arrays kept for each number of pedestrians
         self._fused_caution = c.caution is not None and c.caution.occlusion and type(self.model) is KinematicBicycle
         self._caution_buffers: dict[int, tuple] = {}
-        self._capped: tuple | None = None  # (cost, v_max, that cost capped to v_max): caution's last
+        self._capped: tuple | None = None  # (cost, its reference capped, the cost capped): caution's last
         self._ease_step = 0.0 if c.caution is None else c.caution.ease * c.dt  # the speed rows' most lowering a step
         self._warm_up()
         self.reset()
@@ -518,9 +518,15 @@ class MpcController:
         if ref is not None and hasattr(ref, "v_max"):
             v_max = max(min(ref.v_max, bound), 1e-3)
             if v_max != ref.v_max:  # (a bound above the reference's speed leaves the cost as it is)
-                last = self._capped  # the last step's capped cost, when it capped the same cost alike
-                if last is None or last[0] is not cost or last[1] != v_max:
-                    last = self._capped = (cost, v_max, _revised(cost, reference=_revised(ref, v_max=v_max)))
+                last = self._capped  # (the tracked cost, its reference capped, the cost capped): the last step's
+                if last is not None and last[0] is cost and type(last[1]) is BoundedProportionalReference:
+                    # the same cost capped anew: the controller's own copy of its reference (which derives
+                    # nothing from v_max, and which no one else holds) takes the new cap in place
+                    if last[1].v_max != v_max:
+                        object.__setattr__(last[1], "v_max", v_max)
+                elif last is None or last[0] is not cost or last[1].v_max != v_max:
+                    capped = _revised(ref, v_max=v_max)
+                    last = self._capped = (cost, capped, _revised(cost, reference=capped))
                 p.cost = last[2]
         if bicycle:
             p.speed_cap = bound
