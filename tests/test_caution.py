@@ -134,6 +134,26 @@ def test_the_controller_bounds_the_planned_speed_only_near_an_untrusted_pedestri
     assert free.predicted_states[1:, 3].max() > cap + 0.1 and free.detour is None
 
 
+def test_a_bound_that_moves_every_step_caps_a_copy_of_the_cost_never_the_callers():
+    # the controller caps its own copy of the cost's reference in place while the bound moves: the
+    # same plans as capping a fresh copy at every step, and the caller's cost is left as it was
+    cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0))
+    v_max = cost.reference.v_max
+    road = RoadEdgeBarrier((-50.0, 0.0), (250.0, 0.0), left=3.0, right=3.0, margin=0.9)
+    cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, caution=CautionConfig(), deterministic=True)
+    kept, fresh = (MpcController(KinematicBicycle(), cost, cfg, barriers=[road]) for _ in range(2))
+    x, ped, caps = np.array([0.0, 0.0, 0.0, 8.0]), np.array([[25.0, 3.4]]), set()
+    for _ in range(25):
+        fresh._capped = None  # a fresh capped copy at every step
+        sols = [c.step(x, ped, np.zeros((1, 2)), np.array([0.0])) for c in (kept, fresh)]
+        np.testing.assert_array_equal(sols[0].inputs, sols[1].inputs)
+        assert kept.problem.cost is cost and cost.reference.v_max == v_max
+        if kept._capped is not None:
+            caps.add(kept._capped[1].v_max)
+        x = sols[0].predicted_states[1]
+    assert len(caps) >= 3  # (the bound moved)
+
+
 def test_a_yield_is_a_stop_that_no_bystanders_growing_region_pushes_the_car_past():
     """Issue 34 (10 frames/s, seed 1 run 65): a car waiting for a crosser (the yield's stop behind
     it) was pushed forward at 0.4-0.7 m/s by the barrier of an unseen bystander beside it, whose

@@ -89,6 +89,36 @@ def test_a_last_sighting_of_the_wrong_shape_is_one_line_naming_it():
         _step(_controller(), 0.9, (LAST[0], LAST[1], np.array([np.nan])))
 
 
+def test_the_bicycles_one_call_caution_decides_as_the_general_path_whatever_the_arrays_dtype():
+    # the unseen bet, radii and speed bound in one compiled call (the bicycle's) against the general
+    # path's separate calls, on random scenes; Fortran-ordered and strided last sightings (converted:
+    # the kernel compiles no variant in a control loop) give the same step as C arrays
+    rng = np.random.default_rng(7)
+    bound = 0
+    for _ in range(6):
+        n = int(rng.integers(1, 4))
+        # on the kerbs ahead, standing or walking slowly
+        peds = np.column_stack([rng.uniform(5.0, 30.0, n), rng.choice([-1.0, 1.0], n) * rng.uniform(3.3, 5.0, n)])
+        vels = rng.normal(0.0, 0.3, (n, 2))
+        a = rng.normal(0.0, 0.2, (n, 4, 4))
+        grown = np.einsum("nij,nkj->nik", a, a) + 0.05 * np.eye(4)
+        seen = np.column_stack([peds + rng.normal(0.0, 0.3, (n, 2)), rng.normal(0.0, 0.3, (n, 2))])
+        last = (seen, 0.2 * grown, NOW - rng.uniform(0.0, 2.0, n))
+        trusts = rng.uniform(0.0, 1.0, n)
+        x = np.array([0.0, float(rng.uniform(-1.0, 1.0)), 0.0, float(rng.uniform(0.0, 8.0))])
+        runs = []
+        other = (np.asfortranarray(seen), np.asfortranarray(last[1]), np.repeat(last[2], 2)[::2])
+        for fused, arrays in ((True, last), (True, other), (False, last)):
+            ctl = _controller()
+            ctl._fused_caution = fused
+            runs.append(ctl.step(x, peds, vels, trusts, time=NOW, covariances=grown, last_seen=arrays))
+        for run in runs[1:]:
+            assert run.detour == runs[0].detour
+            np.testing.assert_array_equal(run.inputs, runs[0].inputs)
+        bound += (runs[0].detour or "").startswith("caution")
+    assert bound  # (the speed bound set some of these steps)
+
+
 def _yield(peds, vels, stateful: bool):
     y = Yielder(YieldConfig())
     extra = {"time": 0.0, "safety_radius": 2.5} if stateful else {}

@@ -409,6 +409,17 @@ def under_speed_cap(u, v0, top, lo, dt):
 
 
 @njit(cache=True)
+def shift_under_speed_cap(plan, shifted, u, v0, top, lo, dt):
+    """:func:`shift_plan` of ``plan`` into ``shifted``, and into ``u`` the same under caution's speed
+    rows (:func:`under_speed_cap`): the start of a capped step in one call."""
+    shift_plan(plan, shifted)
+    for k in range(u.shape[0]):
+        for d in range(u.shape[1]):
+            u[k, d] = shifted[k, d]
+    under_speed_cap(u, v0, top, lo, dt)
+
+
+@njit(cache=True)
 def single_integrator_curvature(lam, nsimple, omg, stride, n_p, dt, floor, h_mat):
     """The Hessian of the SQP's QP with the pedestrian rows' curvature (an exact-Hessian SQP) for
     the single integrator with cost sum ||u - u_bar||^2: H = 2 (I + dt^2 C) (x) I_2, where C is the

@@ -275,3 +275,34 @@ def _unseen_step(consts, times, x, p, trusts, peds, vels, margins, cov, out_peds
                 for b in range(4):
                     out_cov[j, a, b] = cov[j, a, b]
     return used
+
+
+@njit(cache=True)
+def _caution_step(k, px, py, now, hx, hy, times, x, p, trusts, peds, vels, margins, cov, out):
+    """A bicycle controller's caution for the step in one compiled pass (a step's few pedestrians:
+    one call instead of several, each of whose dispatch costs more than its arithmetic): the unseen
+    bet of :func:`_unseen_step` (``k`` its constants; the car at (px, py) and the time ``now`` are
+    written here); each pedestrian's radius, R (``k[8]``) plus her margin; and the least speed
+    bound of :func:`_least_bound` along the unit heading (hx, hy) (``k[9:15]``:
+    :func:`bound_constants`). ``out`` (22 N,) holds the step's positions (N, 2), velocities (N, 2),
+    margins (N,), covariances (N, 4, 4) and radii (N,) in that order. Returns (pedestrians
+    replaced, -1 where an input is not finite or of another shape; then :func:`_least_bound`'s
+    bound, index, r + rho and metres ahead)."""
+    n = peds.shape[0]
+    if times.shape[0] != n or x.shape[0] != n or x.shape[1] != 4 or trusts.shape[0] != n or vels.shape[0] != n:
+        return -1, math.inf, -1, 0.0, 0.0
+    for q in (p, cov):
+        if q.shape[0] != n or q.shape[1] != 4 or q.shape[2] != 4:
+            return -1, math.inf, -1, 0.0, 0.0
+    if margins.shape[0] != n or out.shape[0] != 22 * n:
+        return -1, math.inf, -1, 0.0, 0.0
+    out_peds, out_vels = out[: 2 * n].reshape((n, 2)), out[2 * n : 4 * n].reshape((n, 2))
+    out_margins, out_cov, radii = out[4 * n : 5 * n], out[5 * n : 21 * n].reshape((n, 4, 4)), out[21 * n :]
+    k[0], k[1], k[2] = px, py, now
+    used = _unseen_step(k, times, x, p, trusts, peds, vels, margins, cov, out_peds, out_vels, out_margins, out_cov)
+    if used < 0:
+        return used, math.inf, -1, 0.0, 0.0
+    for j in range(n):
+        radii[j] = k[8] + out_margins[j]
+    v, j, reach, s = _least_bound(px, py, hx, hy, out_peds, trusts, radii, k[9], k[10], k[11], k[12], k[13], k[14])
+    return used, v, j, reach, s

@@ -16,9 +16,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from trustnav.control._kernels import shift_plan, under_speed_cap
+from trustnav.control._kernels import shift_plan, shift_under_speed_cap, under_speed_cap
 from trustnav.control.barrier import Barrier, RoadEdgeBarrier, _quantile, uncertainty_margins
-from trustnav.control.caution import _least_bound, _unseen_step, bound_constants, caution_bound, caution_note
+from trustnav.control.caution import (
+    _caution_step,
+    _least_bound,
+    _unseen_step,
+    bound_constants,
+    caution_bound,
+    caution_note,
+)
 from trustnav.control.costs import Cost, LaneTrackingCost, PositionTrackingCost, VelocityTrackingCost
 from trustnav.control.deadlock import DeadlockResolver
 from trustnav.control.models import Dynamics, KinematicBicycle, SingleIntegrator
@@ -79,9 +86,9 @@ def _revised(obj, **changes):  # type: ignore[no-untyped-def]
     if type(obj) not in _CHECK_ONLY:
         return replace(obj, **changes)
     new = object.__new__(type(obj))
-    new.__dict__.update(obj.__dict__)
-    for name, value in changes.items():
-        object.__setattr__(new, name, value)
+    fields = obj.__dict__.copy()
+    fields.update(changes)
+    object.__setattr__(new, "__dict__", fields)  # (one dict, not a __setattr__ per change)
     return new
 
 
@@ -125,11 +132,16 @@ class MpcController:
         )  # fmt: skip
         self._state_shape = (self.model.nx,)
         self._caution_constants = () if self.config.caution is None else bound_constants(self.config.caution)
-        c = self.config  # the unseen bet's constants: (ego x, ego y, now) written each step
-        self._unseen_constants = np.zeros(8) if c.caution is None else np.array(
+        c = self.config  # the unseen bet's constants: (ego x, ego y, now) written each step; then R and the bound's
+        self._unseen_constants = np.zeros(15) if c.caution is None else np.array(
             [0.0, 0.0, 0.0, c.latency + c.horizon * c.dt, c.latency, c.caution.walking_speed,
-             c.caution.trust_exponent, _quantile(c.confidence)])  # fmt: skip
-        self._capped: tuple | None = None  # (cost, v_max, that cost capped to v_max): caution's last
+             c.caution.trust_exponent, _quantile(c.confidence), c.safety_radius, *self._caution_constants])  # fmt: skip
+        # a bicycle's unseen bet, radii and speed bound in one compiled call (_caution_pass), into
+        # arrays kept for each number of pedestrians
+        self._fused_caution = c.caution is not None and c.caution.occlusion and type(self.model) is KinematicBicycle
+        self._caution_buffers: dict[int, tuple] = {}
+        self._capped: tuple | None = None  # (cost, its reference capped, the cost capped): caution's last
+        self._ease_step = 0.0 if c.caution is None else c.caution.ease * c.dt  # the speed rows' most lowering a step
         self._warm_up()
         self.reset()
 
@@ -149,6 +161,13 @@ class MpcController:
         if self.config.caution is not None:  # and caution's
             caution_bound(self.config.caution, x[:2], np.array([1.0, 0.0]), np.ones((1, 2)), np.zeros(1), np.ones(1))
             under_speed_cap(np.zeros((1, 2)), 0.0, 1.0, -1.0, 1.0)
+            shift_under_speed_cap(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), 0.0, 1.0, -1.0, 1.0)
+            if self._fused_caution:  # then it compiles nothing more: other dtypes and layouts are converted
+                one, cov = np.ones((1, 2)), np.zeros((1, 4, 4))
+                _caution_step(self._unseen_constants.copy(), 0.0, 0.0, 0.0, 1.0, 0.0, np.zeros(1), np.zeros((1, 4)),
+                              cov, np.ones(1), one, one, np.zeros(1), cov, self._buffers(1)[0])  # fmt: skip
+                if _caution_step.signatures:
+                    _caution_step.disable_compile()
         p._qp_structs = None  # no warm start from this stand-in problem
         p.set_stage(x, np.zeros((0, 2)), None, [])
 
@@ -251,14 +270,22 @@ class MpcController:
             x, peds = self._compensate(x, peds, vels, velocities is not None, now)
         p = self.problem
         margins = None
+        radii = None  # each pedestrian's R and margin, for the layers above the MPC (made once)
+        bound = None  # a bicycle's caution: (speed bound, whose, metres ahead), found with the unseen bet
         if covariances is not None:
             c = self.config
             lead = c.latency + c.horizon * c.dt
             margins = uncertainty_margins(x[:2], peds, covariances, lead, c.confidence)
             if last_seen is not None and c.caution is not None and c.caution.occlusion and len(peds):
-                peds, vels, margins, covariances = self._unseen(x, peds, vels, tr, margins, covariances, last_seen, now)
+                if self._fused_caution:
+                    peds, vels, margins, covariances, radii, bound = self._caution_pass(
+                        x, peds, vels, tr, margins, covariances, last_seen, now
+                    )
+                else:
+                    peds, vels, margins, covariances = self._unseen(
+                        x, peds, vels, tr, margins, covariances, last_seen, now
+                    )
         detour, tracked = None, p.cost
-        radii = None  # each pedestrian's R and margin, for the layers above the MPC (made once)
         if self._deadlock is not None:  # the route layer may move the goal the cost tracks
             radii = self._radii(len(peds), margins)
             speed = float(np.hypot(*self._last_control[:2]))
@@ -292,7 +319,7 @@ class MpcController:
                 p.cost = _revised(lane, goal=(float(stop.stop[0]), float(stop.stop[1])), reference=capped)
                 detour = stop.note
         if self.config.caution is not None:  # caution: the speed bound of who might step out
-            detour = self._caution(x, peds, tr, margins, radii, detour)
+            detour = self._caution(x, peds, tr, margins, radii, detour, bound)
             if held_stop is not None and type(self.model) is KinematicBicycle:
                 # a yield is a stop: its cap bounds the speed rows too (lowered by at most ``ease``
                 # per step), so no barrier's push (an unseen bystander's growing region) creeps the
@@ -304,11 +331,20 @@ class MpcController:
         finally:
             p.cost = tracked
         shifted = None
+        capped = p.speed_cap < math.inf  # caution: start the SQP inside its speed rows (its merit counts CBF rows only)
         if self._plan is not None:  # the previous plan shifted by one step, its last input held
             shifted = np.empty(self._plan.shape)
-            shift_plan(self._plan, shifted)
-        u0 = p.initial_guess() if shifted is None else shifted
-        if p.speed_cap < math.inf:  # caution: start the SQP inside its speed rows (its merit counts CBF rows only)
+            if capped and type(self.model) is KinematicBicycle:  # and capped, in one call
+                u0, m = np.empty(shifted.shape), self.model
+                shift_under_speed_cap(self._plan, shifted, u0, float(x[3]), min(m.speed_max, p.speed_cap),
+                                      float(m.accel_min), self.config.dt)  # fmt: skip
+                capped = False
+            else:
+                shift_plan(self._plan, shifted)
+                u0 = shifted
+        else:
+            u0 = p.initial_guess()
+        if capped:
             u0 = self._under_speed_cap(u0, float(x[3]))
         # deterministic: the solver's iteration budget alone bounds the step (no wall clock)
         deadline = None if self.config.deterministic else max(self.config.step_deadline - (_wall() - t0), 0.0)
@@ -431,12 +467,18 @@ class MpcController:
             detour=None if dl is None else dl.note,
         )
 
-    def _caution(self, x, peds, tr, margins, radii, detour: str | None) -> str | None:
+    def _caution(self, x, peds, tr, margins, radii, detour: str | None, found=None) -> str | None:
         """Set this step's caution (:mod:`~trustnav.control.caution`): the reference speed the cost
         tracks capped, and the bicycle's speed rows bounded (``problem.speed_cap``, lowered from the
-        present speed by at most ``ease`` per step). Returns the step's note."""
-        p, cfg = self.problem, self.config.caution
+        present speed by at most ``ease`` per step). Returns the step's note. ``found``: the bound
+        :meth:`_caution_pass` found this step, (bound, index, metres ahead) (None: found here)."""
+        p = self.problem
         p.speed_cap = math.inf
+        if found is not None:  # (a bicycle's)
+            found, j, ahead = found
+            if j < 0:
+                return detour
+            return self._capped_to(found, float(x[3]), True, detour, float(tr[j]), ahead)
         if not len(peds):
             return detour
         bicycle = type(self.model) is KinematicBicycle
@@ -462,21 +504,33 @@ class MpcController:
                                           np.ascontiguousarray(tr), radii, *self._caution_constants)  # fmt: skip
         if j < 0:
             return detour
+        return self._capped_to(found, speed, bicycle, detour, float(tr[j]), ahead)
+
+    def _capped_to(self, found: float, speed: float, bicycle: bool, detour: str | None, trust: float, ahead: float):
+        """:meth:`_caution`'s bound ``found`` (m/s), set by a pedestrian of ``trust`` ``ahead`` metres
+        ahead, applied at the car's ``speed``; returns the step's note."""
+        p = self.problem
         # the speed rows and the reference the cost tracks get the same bound (a reference above
         # the rows would pull the SQP's merit against them), lowered by at most ``ease`` per step
-        bound = max(found, speed - cfg.ease * self.config.dt) if bicycle else found
+        bound = max(found, speed - self._ease_step) if bicycle else found
         cost = p.cost
         ref = getattr(cost, "reference", None)
         if ref is not None and hasattr(ref, "v_max"):
             v_max = max(min(ref.v_max, bound), 1e-3)
             if v_max != ref.v_max:  # (a bound above the reference's speed leaves the cost as it is)
-                last = self._capped  # the last step's capped cost, when it capped the same cost alike
-                if last is None or last[0] is not cost or last[1] != v_max:
-                    last = self._capped = (cost, v_max, _revised(cost, reference=_revised(ref, v_max=v_max)))
+                last = self._capped  # (the tracked cost, its reference capped, the cost capped): the last step's
+                if last is not None and last[0] is cost and type(last[1]) is BoundedProportionalReference:
+                    # the same cost capped anew: the controller's own copy of its reference (which derives
+                    # nothing from v_max, and which no one else holds) takes the new cap in place
+                    if last[1].v_max != v_max:
+                        object.__setattr__(last[1], "v_max", v_max)
+                elif last is None or last[0] is not cost or last[1].v_max != v_max:
+                    capped = _revised(ref, v_max=v_max)
+                    last = self._capped = (cost, capped, _revised(cost, reference=capped))
                 p.cost = last[2]
         if bicycle:
             p.speed_cap = bound
-        return detour or caution_note(found, float(tr[j]), ahead)
+        return detour or caution_note(found, trust, ahead)
 
     def _unseen(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
         """Pedestrians seen last ``tau`` > 0 s ago: the region on trust's bet that each keeps to her
@@ -507,6 +561,51 @@ class MpcController:
         if used:  # the bet where its margin is below the tracker's (in copies: the caller's arrays stay)
             peds, vels, margins, cov = out
         return peds, vels, margins, cov
+
+    def _buffers(self, n: int) -> tuple:
+        """The array :meth:`_caution_pass` writes for ``n`` pedestrians, and its views: positions,
+        velocities, margins, covariances and radii (made once for each ``n``)."""
+        out = self._caution_buffers.get(n)
+        if out is None:
+            flat = np.empty(22 * n)
+            out = self._caution_buffers[n] = (
+                flat, flat[: 2 * n].reshape(n, 2), flat[2 * n : 4 * n].reshape(n, 2), flat[4 * n : 5 * n],
+                flat[5 * n : 21 * n].reshape(n, 4, 4), flat[21 * n :],
+            )  # fmt: skip
+        return out
+
+    def _caution_pass(self, x, peds, vels, tr, margins, covariances, last_seen, now: float):
+        """A bicycle's :meth:`_unseen` and the speed bound of :meth:`_caution` in one compiled call
+        (:func:`~trustnav.control.caution._caution_step`): the step's pedestrians, velocities,
+        margins, covariances and radii (R plus margin) after the unseen bet, in the controller's
+        arrays (rewritten at the next step: the problem's, and the layers', for this step only), and
+        the speed bound (bound, index, metres ahead; index -1: none)."""
+        n = len(peds)
+        out = self._caution_buffers.get(n) or self._buffers(n)
+        px, py, yaw, _ = x.tolist()  # (Python floats: numba reads them faster than numpy's)
+        hx, hy, k = math.cos(yaw), math.sin(yaw), self._unseen_constants
+        used = -1
+        try:  # float64 C arrays, as the step makes them and a caller gives them
+            states, covs, times = last_seen
+            used, found, j, _, ahead = _caution_step(k, px, py, now, hx, hy, times, states, covs, tr, peds, vels,
+                                                     margins, covariances, out[0])  # fmt: skip
+        except (TypeError, ValueError):
+            pass
+        if used < 0:  # other types or layouts converted (the kernel compiles no variant); shapes checked
+            try:
+                states, covs, times = (np.asarray(a, dtype=float) for a in last_seen)
+            except (TypeError, ValueError):
+                states = covs = times = np.zeros(0)
+            cov = np.asarray(covariances, dtype=float)
+            if states.shape == (n, 4) and covs.shape == (n, 4, 4) and times.shape == (n,) and cov.shape == (n, 4, 4):
+                arrays = (times, states, covs, tr, peds, vels, margins, cov)
+                args = (np.ascontiguousarray(a, dtype=float) for a in arrays)
+                used, found, j, _, ahead = _caution_step(k, px, py, now, hx, hy, *args, out[0])
+            if used < 0:
+                shapes = (states.shape, covs.shape, times.shape)
+                raise ValueError(f"last_seen must be finite (states ({n}, 4), covariances ({n}, 4, 4), times ({n},)) "
+                                 f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
+        return out[1], out[2], out[3], out[4], out[5], (found, j, ahead)
 
     def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays

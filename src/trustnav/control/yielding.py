@@ -187,9 +187,9 @@ class Yielder:
             gone = ((off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
                     or float(time) - t0 > c.memory)  # fmt: skip
             dist = np.hypot(*(np.asarray(pedestrians, dtype=float).reshape(-1, 2) - pred).T) if n_real else None
-            seen = dist is not None and float(np.min(dist)) <= c.rematch
+            seen = dist is not None and float(dist.min()) <= c.rematch
             if seen and not float(time) - t0 > c.memory:
-                held = int(np.argmin(dist))  # still seen: released only once clear of the line it heads along
+                held = int(dist.argmin())  # still seen: released only once clear of the line it heads along
             if gone or seen:
                 self._memory = None
             else:
@@ -232,7 +232,7 @@ class Yielder:
         lane_dir = lane / length
         s_lane = float((position - lane_start) @ lane_dir)  # the car on its lane
         along = s_lane + (stop_s - s_car) / max(float(axis @ lane_dir), 1e-6)
-        along = float(np.clip(along, min(0.01, length), length))  # never the lane's start: a lane needs a length
+        along = min(max(along, min(0.01, length)), length)  # never the lane's start: a lane needs a length
         stop = lane_start + along * lane_dir
         who = "a pedestrian the car cannot pass on the road"
         if j >= n_real:
