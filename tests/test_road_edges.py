@@ -187,6 +187,8 @@ def test_the_drive_has_road_edges_by_default_and_false_is_the_papers_controller(
     (road,) = sc.control.barriers(sc.road, sc.vehicle)
     assert road.turn_radius == pytest.approx(sc.vehicle.wheelbase / np.tan(np.radians(sc.vehicle.steer_max_deg)))
     assert dataclasses.replace(sc.control, road_recover=False).barriers(sc.road, sc.vehicle)[0].turn_radius == 0.0
+    with pytest.raises(ValueError, match="road_recover must be true or false"):
+        dataclasses.replace(sc.control, road_recover=1)
 
 
 @pytest.mark.slow
