@@ -502,7 +502,7 @@ def _road_value(road, i, x, y, yaw):
         return room + sign * d, sign * nx_, sign * ny_, 0.0
     front = road[6]
     c, s = math.cos(yaw), math.sin(yaw)
-    lateral = c * nx_ + s * ny_  # the heading's components toward the left edge and along the road
+    lateral = c * nx_ + s * ny_  # the heading's component toward the left edge
     radius = road[8]
     if radius > 0:
         along = c * ny_ - s * nx_
