@@ -361,7 +361,7 @@ def run_drive_case(seed: int = 0, casadi: bool = True) -> dict:
     (its road rows and radii included) from the controller's warm start right after it."""
     sc, calls = _record_drive(seed)
     model, cfg, cost = sc.vehicle.model(), sc.control.config(), sc.control.cost(sc.ego_start, sc.goal)
-    barriers = sc.control.barriers(sc.road)
+    barriers = sc.control.barriers(sc.road, sc.vehicle)
 
     def controller():
         return MpcController(model, cost, cfg, SqpSolver(), barriers=barriers)

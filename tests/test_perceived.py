@@ -193,6 +193,24 @@ def _sigma_after(rate: float, seconds: float, config: WorldTrackerConfig, bias=(
     return sigma, float(np.linalg.norm(state.mean[:2])) / sigma
 
 
+def test_an_estimate_goes_to_the_track_it_is_likeliest_under_not_the_one_that_knows_least():
+    """Issue 34 (seed 5, run 68 of the lane crossings): a bystander's track long unseen (sigma 3 m)
+    took a crosser's detection 2.9 m from it from her own track, 0.5 m from it (sigma 0.1 m), by
+    the Mahalanobis distance alone (0.9 against 4.6), and stood as a ghost below the image. The
+    normalized distance (plus ln det of the innovation covariance) gives it to her track."""
+    picks = {}
+    for normalized in (True, False):
+        tr = WorldTracker(WorldTrackerConfig(normalized_distance=normalized))
+        for k in range(3):  # her track, seen well; a bystander's, placed badly (sigma 3 m), both confirmed
+            tr.add_frame(k * 0.1, [_estimate((0.0, 0.0), sigma=0.1), _estimate((2.9, 0.0), sigma=3.0)])
+        her, bystander = (t.track_id for t in tr.tracks)
+        (picks[normalized],) = tr.add_frame(0.3, [_estimate((0.45, 0.0), sigma=0.1)])
+        assert picks[normalized] in (her, bystander)
+    assert picks[True] == her and picks[False] == bystander
+    with pytest.raises(ValueError, match="normalized_distance"):
+        WorldTrackerConfig(normalized_distance=1)  # type: ignore[arg-type]
+
+
 def test_frames_close_together_count_as_one_placement_at_any_rate():
     """error_correlation_s: the same bias frame after frame (one pose, one viewpoint) must not
     shrink the covariance with the frame rate; without it, 10 frames/s are ten times as sure."""

@@ -46,6 +46,62 @@ def test_the_front_rows_keep_the_point_ahead_on_the_road_and_their_gradient_is_e
         RoadEdgeBarrier((0, 0), (1, 0), left=3.0, right=3.0, front=-1.0)
 
 
+TURN = 2.9 / np.tan(np.radians(35.0))  # the drive's car's smallest turning radius (m; VehicleSpec)
+
+
+def _front_reach(x0, steer, metres=6.0, dt=0.002):
+    """The largest lateral offset (left positive) the point 2 m ahead reaches while the default
+    drive's car drives ``metres`` from ``x0`` at constant ``steer`` (fine steps of the exact bicycle)."""
+    model, x, out = KinematicBicycle(wheelbase=2.9), np.array(x0, dtype=float), -np.inf
+    x[3] = 1.0
+    for _ in range(int(metres / dt)):
+        x = model.step(x, np.array([steer, 0.0]), dt)
+        out = max(out, x[1] + 2.0 * np.sin(x[2]))
+    return out
+
+
+def test_the_front_rows_with_a_turn_radius_keep_the_arc_back_on_the_road():
+    """A car turned toward the edge by more than beta = atan(front / turn radius) (26 deg) swings its
+    front further out when it turns back: the rows keep that swing on the road, so every state they
+    admit can leave along the arc; the front point's rows alone admit states with no way on."""
+    from trustnav.control import _kernels as kern
+
+    plain = RoadEdgeBarrier((0.0, 0.0), (100.0, 0.0), left=3.0, right=3.0, margin=0.9, front=2.0)
+    swept = RoadEdgeBarrier((0.0, 0.0), (100.0, 0.0), left=3.0, right=3.0, margin=0.9, front=2.0, turn_radius=TURN)
+    k0 = np.zeros(1, dtype=np.int64)
+    beta = np.degrees(np.arctan2(2.0, TURN))
+    for deg in (-beta + 0.1, -10.0, 0.0, 20.0, beta - 0.1):  # turned less than beta either way: the same rows
+        for x in ([10.0, 0.5, np.radians(deg), 3.0], [10.0, -0.5, np.radians(-deg), 3.0]):
+            state = np.array([x])
+            np.testing.assert_array_equal(swept.values(state, k0, 0.1)[0], plain.values(state, k0, 0.1)[0])
+    for deg in (29.0, 45.0, 80.0):  # turned more: the outermost point of the front's circle about the turn centre
+        x = np.array([[10.0, 0.3, np.radians(deg), 0.0]])
+        h = swept.values(x, k0, 0.1)[0]
+        swing = np.hypot(TURN, 2.0) - TURN * np.cos(np.radians(deg))
+        np.testing.assert_allclose(h[0, 2], 2.1 - 0.3 - swing, atol=1e-12)
+        assert h[0, 2] < plain.values(x, k0, 0.1)[0][0, 2]
+        mirrored = np.array([[10.0, -0.3, -np.radians(deg), 0.0]])
+        np.testing.assert_allclose(swept.values(mirrored, k0, 0.1)[0][0, 3], h[0, 2], atol=1e-12)
+        road = np.array([*swept.start, *swept.normal, *swept.room, swept.front, 1.0 - swept.gamma, swept.turn_radius])
+        for state in (x[0], mirrored[0]):  # the compiled rows the SQP builds are the same, gradient exact
+            for i in (2, 3):
+                value, *_, slope = kern._road_value(road, i, *state[:3])
+                hs, gs = swept.values(state[None], k0, 0.1)
+                assert value == pytest.approx(hs[0, i], abs=1e-12) and slope == pytest.approx(gs[0, i, 2], abs=1e-12)
+                up = kern._road_value(road, i, state[0], state[1], state[2] + 1e-6)[0]
+                assert (up - value) / 1e-6 == pytest.approx(slope, abs=1e-4)
+    # on the rows' boundary, turned 29 deg toward the left edge: full steer back keeps the front on the road
+    at = np.radians(29.0)
+    y = 2.1 - (np.hypot(TURN, 2.0) - TURN * np.cos(at))
+    assert _front_reach([10.0, y, at, 0.0], -np.radians(35.0)) <= 2.1 + 1e-3
+    # the front point's boundary at the same heading: every steer takes the front past the edge
+    y = 2.1 - 2.0 * np.sin(at)
+    for steer in np.radians([-35.0, -20.0, 0.0, 20.0]):
+        assert _front_reach([10.0, y, at, 0.0], steer) > 2.1 + 5e-3
+    with pytest.raises(ValueError, match="road turn_radius"):
+        RoadEdgeBarrier((0, 0), (1, 0), left=3.0, right=3.0, front=2.0, turn_radius=-1.0)
+
+
 def test_a_relaxed_step_with_a_user_barrier_is_solved_and_reported():
     """A pedestrian on the lane ahead and road edges too tight to pass: the QP needs its slacks,
     which cover the road rows as well as the pedestrian's (this crashed before: slacks were sized
@@ -127,6 +183,12 @@ def test_the_drive_has_road_edges_by_default_and_false_is_the_papers_controller(
     assert sc.control.road_edges and len(sc.control.barriers(sc.road)) == 1
     off = dataclasses.replace(sc.control, road_edges=False)
     assert off.barriers(sc.road) == ()
+    # the front's rows keep the arc back at the car's smallest turning radius; road_recover = false: the point alone
+    (road,) = sc.control.barriers(sc.road, sc.vehicle)
+    assert road.turn_radius == pytest.approx(sc.vehicle.wheelbase / np.tan(np.radians(sc.vehicle.steer_max_deg)))
+    assert dataclasses.replace(sc.control, road_recover=False).barriers(sc.road, sc.vehicle)[0].turn_radius == 0.0
+    with pytest.raises(ValueError, match="road_recover must be true or false"):
+        dataclasses.replace(sc.control, road_recover=1)
 
 
 @pytest.mark.slow

@@ -504,7 +504,7 @@ def _positive_definite(mat, shift, work):
 def _road_value(road, i, x, y, yaw):
     """Road-edge function i of :class:`~trustnav.control.barrier.RoadEdgeBarrier` at a world
     position and heading; ``road`` = (start x, start y, normal x, normal y, room left, room right,
-    front, 1 - gamma). Returns (h, dh/dx, dh/dy, dh/dyaw)."""
+    front, 1 - gamma, turn radius). Returns (h, dh/dx, dh/dy, dh/dyaw)."""
     nx_, ny_ = road[2], road[3]
     d = (x - road[0]) * nx_ + (y - road[1]) * ny_
     sign = -1.0 if i % 2 == 0 else 1.0  # left edge: room - d, right edge: d + room
@@ -513,7 +513,16 @@ def _road_value(road, i, x, y, yaw):
         return room + sign * d, sign * nx_, sign * ny_, 0.0
     front = road[6]
     c, s = math.cos(yaw), math.sin(yaw)
-    df = d + front * (c * nx_ + s * ny_)
+    lateral = c * nx_ + s * ny_  # the heading's component toward the left edge
+    radius = road[8]
+    if radius > 0:
+        along = c * ny_ - s * nx_
+        toward = -sign * lateral  # toward this row's edge
+        if toward > 0 and toward * radius > front * along:  # turned past atan(front / radius)
+            # the front's farthest reach on the arc back at the smallest turning radius
+            swing = math.sqrt(radius * radius + front * front) - radius * along
+            return room + sign * d - swing, sign * nx_, sign * ny_, radius * (-s * ny_ - c * nx_)
+    df = d + front * lateral
     turn = front * (-s * nx_ + c * ny_)
     return room + sign * df, sign * nx_, sign * ny_, sign * turn
 

@@ -11,6 +11,7 @@ from the values and state Jacobians the barrier returns, vectorised over the hor
 
 from __future__ import annotations
 
+import math
 from statistics import NormalDist
 from typing import Literal, Protocol, runtime_checkable
 
@@ -263,7 +264,18 @@ class RoadEdgeBarrier:
     ``front`` ahead of the position along the heading on the road too. A car whose centre alone is
     kept could reach the edge turned toward it and stop there, its nose over the kerb, unable to
     drive on without leaving the road (a bicycle does not reverse); with its front kept as well, it
-    straightens before it reaches the edge."""
+    straightens before it reaches the edge.
+
+    ``turn_radius`` (m, the car's smallest turning radius at the position: wheelbase / tan(steer
+    max); 0: the front point alone): the front rows keep on the road the farthest the front
+    point reaches while the car turns back from the edge at that radius. Turned toward an edge by
+    less than beta = atan(front / turn_radius), the front moves away from the edge as soon as the
+    car turns back, and the row is the front point's as above. Turned more, it first swings
+    further out, on a circle of radius sqrt(turn_radius^2 + front^2) about the turning centre:
+    the row keeps that circle's outermost point on the road, so a car stopped at the row's
+    boundary can still leave along the arc (with the front point alone, a car turned past beta
+    with its front at the edge can go neither on nor back). Equal to the front point's row, and
+    its slope, at beta; the same rows whenever the car is turned less."""
 
     def __init__(
         self,
@@ -274,6 +286,7 @@ class RoadEdgeBarrier:
         margin: float = 0.0,
         gamma: float = 0.5,
         front: float = 0.0,
+        turn_radius: float = 0.0,
     ) -> None:
         a, b = np.asarray(start, dtype=float).reshape(2), np.asarray(end, dtype=float).reshape(2)
         axis = b - a
@@ -292,6 +305,9 @@ class RoadEdgeBarrier:
         if not (np.isfinite(front) and front >= 0):
             raise ValueError(f"road front must be a finite distance >= 0 m, got {front!r}")
         self.front = float(front)
+        if not (np.isfinite(turn_radius) and turn_radius >= 0):
+            raise ValueError(f"road turn_radius must be a finite distance >= 0 m, got {turn_radius!r}")
+        self.turn_radius = float(turn_radius) if self.front > 0 else 0.0
 
     def size(self) -> int:
         return 4 if self.front > 0 else 2
@@ -319,4 +335,15 @@ class RoadEdgeBarrier:
             rows += [self.room[0] - df, df + self.room[1]]
             grad[:, 2, :2], grad[:, 2, 2] = -self.normal, -turn
             grad[:, 3, :2], grad[:, 3, 2] = self.normal, turn
+            if self.turn_radius > 0:  # turned past beta: the front's swing on the arc back
+                r, f = self.turn_radius, self.front
+                lateral = ahead @ self.normal
+                along = ahead @ np.array([self.normal[1], -self.normal[0]])
+                d_along = np.stack([-np.sin(yaw), np.cos(yaw)], axis=1) @ np.array([self.normal[1], -self.normal[0]])
+                swing = math.hypot(r, f) - r * along
+                for row, sign in ((2, -1.0), (3, 1.0)):
+                    toward = -sign * lateral
+                    past = (toward > 0) & (toward * r > f * along)
+                    rows[row] = np.where(past, self.room[row - 2] + sign * d - swing, rows[row])
+                    grad[past, row, 2] = r * d_along[past]
         return np.stack(rows, axis=1), grad

@@ -304,13 +304,13 @@ class MpcProblem:
         # integrator tracking a velocity: positions linear in U, cost Hessian 2 I); H then holds the
         # curvature of the last hard QP's multipliers (`curve`) or the cost's alone (`flatten`)
         # a road's edges as the only user barrier: its rows are built by a compiled kernel, in the
-        # compiled SQP loop too (the drive's controller); (start, normal, room, front, 1 - gamma)
+        # compiled SQP loop too (the drive's controller); (start, normal, room, front, 1 - gamma, turn radius)
         self._road = None
         self._n_road = 0
         if len(self.barriers) == 1 and type(self.barriers[0]) is RoadEdgeBarrier:
             b = self.barriers[0]
             if b.front == 0 or model.nx > 2:
-                self._road = np.array([*b.start, *b.normal, *b.room, b.front, 1.0 - b.gamma])
+                self._road = np.array([*b.start, *b.normal, *b.room, b.front, 1.0 - b.gamma, b.turn_radius])
                 self._n_road = b.size()
         self.exact_capable = self._fused is _fused_single_integrator
         self.exact_hessian = self.exact_capable  # the solver may turn it off (SqpSolver(hessian=...))
@@ -792,7 +792,7 @@ class MpcProblem:
         return self.constraints_np(u_flat)[self.n_decided :]
 
 
-_NO_ROAD = np.zeros(8)  # the compiled bicycle loop's road argument where there is none
+_NO_ROAD = np.zeros(9)  # the compiled bicycle loop's road argument where there is none
 
 
 def whole_step_kernel_loaded() -> None:

@@ -647,7 +647,7 @@ def drive(
         environment.max_frames = max_frames
     config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency)
     model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
-    policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road))
+    policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road, sc.vehicle))
 
     def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:

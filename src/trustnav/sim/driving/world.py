@@ -141,8 +141,11 @@ class ControlSpec:
     ``confidence``: with perceived pedestrians, the probability with which R is kept from the true
     person (R grows by the estimate's uncertainty along the line of approach). ``road_edges``: the
     road's edges as barriers on the car's centre (:class:`~trustnav.control.RoadEdgeBarrier`),
-    ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``, with
-    the controller's yielding layer (:mod:`~trustnav.control.yielding`: the car brakes and waits for a
+    ``road_margin`` (m) inside them (half the car's width), approached at rate ``road_gamma``, the
+    point ``road_front`` (m) ahead kept on the road too, and with ``road_recover`` (default) the arc
+    that point swings through when the car turns back from an edge at its smallest turning radius
+    (a car stopped turned toward the kerb can still leave; :class:`~trustnav.control.RoadEdgeBarrier`),
+    with the controller's yielding layer (:mod:`~trustnav.control.yielding`: the car brakes and waits for a
     pedestrian it cannot pass on the road); on by default, ``road_edges = false`` is the paper's
     controller, which knows no road (docs/drive.md, "Road edges in the controller").
     ``caution`` (on by default; false: the paper's controller): the trust-aware speed bound
@@ -171,6 +174,7 @@ class ControlSpec:
     road_margin: Annotated[float, NON_NEGATIVE] = 0.9
     road_gamma: Annotated[float, Number(0.0, 1.0, lo_open=True)] = 0.5
     road_front: Annotated[float, NON_NEGATIVE] = 2.0
+    road_recover: bool = True
     caution: bool = True
     caution_walking_speed: Annotated[float, Number(lo=0, unit=" m/s")] = 1.4
     caution_trust_exponent: Annotated[float, POSITIVE] = 2.0
@@ -222,12 +226,17 @@ class ControlSpec:
         ref = BoundedProportionalReference(self.reference_gain, self.reference_v_max)
         return LaneTrackingCost(start=start, goal=goal, reference=ref)
 
-    def barriers(self, road: RoadSpec) -> tuple[RoadEdgeBarrier, ...]:
-        """The road's edges for the controller (none when ``road_edges`` is off)."""
+    def barriers(self, road: RoadSpec, vehicle: VehicleSpec | None = None) -> tuple[RoadEdgeBarrier, ...]:
+        """The road's edges for the controller (none when ``road_edges`` is off); with
+        ``road_recover``, the front's rows keep the arc back at ``vehicle``'s smallest turning radius
+        on the road (default: the default vehicle's)."""
         if not self.road_edges:
             return ()
         half = road.width / 2
-        return (RoadEdgeBarrier(road.start, road.end, half, half, self.road_margin, self.road_gamma, self.road_front),)
+        v = vehicle or VehicleSpec()
+        radius = v.wheelbase / math.tan(math.radians(v.steer_max_deg)) if self.road_recover else 0.0
+        return (RoadEdgeBarrier(road.start, road.end, half, half, self.road_margin, self.road_gamma, self.road_front,
+                                radius),)  # fmt: skip
 
 
 #: The largest ``SensingSpec.perception_latency`` (s) accepted: beyond it a frame describes a street
