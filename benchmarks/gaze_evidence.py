@@ -59,23 +59,11 @@ def eye_numbers(lm: np.ndarray) -> tuple[float, float, float, float]:
     return float(np.mean(opening)), float(np.mean(low)), float(np.mean(aside)), float(np.mean(widths))
 
 
-def auc(pairs: list[tuple[bool, float]]) -> str:
-    """Mann-Whitney AUC of the positives' scores above the negatives' (ties a half), with the counts."""
-    pos = [v for y, v in pairs if y and np.isfinite(v)]
-    neg = [v for y, v in pairs if not y and np.isfinite(v)]
-    if not pos or not neg:
-        return f"- ({len(pos)}+{len(neg)})"
-    a, b = np.array(pos)[:, None], np.array(neg)[None, :]
-    return f"{float(np.mean((a > b) + 0.5 * (a == b))):.2f} ({len(pos)}+{len(neg)})"
-
-
 def main() -> None:
-    import cv2
 
     import trust_eval as te
     from trustnav.perception.face import FaceConfig, FaceEyeContact, eye_contact_probability
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
-    from trustnav.perception.types import box_iou
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rendered", type=Path, help="folder holding the rendered sets' frames (trust_eval.py --keep)")
@@ -86,47 +74,29 @@ def main() -> None:
     if args.side < 64:
         ap.error(f"--side {args.side}: expected the upscaled face crop's side in px, >= 64")
     warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype")
-    seq = te.SHARED / "data" / "sequences"
-    sets = {"walk_a": seq / "walk_a", "phone_a": seq / "phone_a", "street": te.SHARED / "data" / "street_images"}
-    if args.rendered:
-        sets |= {n: args.rendered / n for n in ("rendered", "rendered_heldout", "rendered_sequence")}
+    sets = te.evidence_sets(args.rendered, ("rendered", "rendered_heldout", "rendered_sequence"))
     face = FaceEyeContact()
     graphs = face._load()
     head_crop = FaceEyeContact(FaceConfig(eye_crop_px=0, min_eye_px=10.0))  # the irises before issue 35's pass
     head_crop._graphs = graphs
     rows = []
     with MediaPipePoseBackend(video=False) as backend:
-        for name, folder in sets.items():
-            for frame_name, labelled in te.load_labels(name)["frames"].items():
-                wanted = [lab for lab in labelled["people"] if lab.get("eye_contact") is not None]
-                if not wanted:
-                    continue
-                image = cv2.imread(str(folder / frame_name))
-                if image is None:
-                    raise SystemExit(f"cannot read {folder / frame_name}")
-                frame = np.ascontiguousarray(image[:, :, ::-1])
-                people = backend(frame)
-                for lab in wanted:
-                    if not people:
-                        continue
-                    person = max(people, key=lambda q: box_iou(q.bbox, lab["bbox"]))
-                    if box_iou(person.bbox, lab["bbox"]) < 0.5:
-                        continue
-                    res = face.analyse(frame, person)
-                    before = head_crop.analyse(frame, person).probability
-                    row = {"set": name, "frame": frame_name, "id": lab.get("id", ""), "y": bool(lab["eye_contact"]),
-                           "h": float(person.bbox[3] - person.bbox[1]), "face_px": res.face_px, "yaw": res.yaw,
-                           "pitch": res.pitch, "p": res.probability, "c": res.confidence, "p_old": before,
-                           "open": math.nan, "low": math.nan, "aside": math.nan, "eye_px": math.nan,
-                           "aside_moved": math.nan, "p_gaze": math.nan}  # fmt: skip
-                    lm = _face_mesh(frame, person, face, graphs, args.side)
-                    if lm is not None:
-                        o, lo, asd, w = eye_numbers(lm[0])
-                        row |= {"open": o, "low": lo, "aside": asd, "eye_px": w / lm[1]}
-                        moved = _face_mesh(frame, person, face, graphs, args.side, shift=1)
-                        row["aside_moved"] = eye_numbers(moved[0])[2] if moved is not None else math.nan
-                        row["p_gaze"] = eye_contact_probability(res.yaw + face.config.iris_gain_deg * asd, res.pitch)
-                    rows.append(row)
+        for name, frame_name, frame, lab, person in te.labelled_people(sets, backend, "eye_contact"):
+            res = face.analyse(frame, person)
+            before = head_crop.analyse(frame, person).probability
+            row = {"set": name, "frame": frame_name, "id": lab.get("id", ""), "y": bool(lab["eye_contact"]),
+                   "h": float(person.bbox[3] - person.bbox[1]), "face_px": res.face_px, "yaw": res.yaw,
+                   "pitch": res.pitch, "p": res.probability, "c": res.confidence, "p_old": before,
+                   "open": math.nan, "low": math.nan, "aside": math.nan, "eye_px": math.nan,
+                   "aside_moved": math.nan, "p_gaze": math.nan}  # fmt: skip
+            lm = _face_mesh(frame, person, face, graphs, args.side)
+            if lm is not None:
+                o, lo, asd, w = eye_numbers(lm[0])
+                row |= {"open": o, "low": lo, "aside": asd, "eye_px": w / lm[1]}
+                moved = _face_mesh(frame, person, face, graphs, args.side, shift=1)
+                row["aside_moved"] = eye_numbers(moved[0])[2] if moved is not None else math.nan
+                row["p_gaze"] = eye_contact_probability(res.yaw + face.config.iris_gain_deg * asd, res.pitch)
+            rows.append(row)
     print("| set | frame | person | label | height | face px | eye px | yaw | pitch | p_face | c_face | opening | "
           "iris low | iris aside | moved 1 px | p_gaze |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -154,7 +124,7 @@ def main() -> None:
     ]
     groups.append(("real sets", [x for x in rows if x["set"] in REAL]))  # fmt: skip
     for span, r in groups:
-        print(f"| {span} | " + " | ".join(auc([(x["y"], f(x)) for x in r]) for f in numbers) + " |")
+        print(f"| {span} | " + " | ".join(te.auc([(x["y"], f(x)) for x in r]) for f in numbers) + " |")
 
 
 def _face_mesh(frame: np.ndarray, person: object, face: object, graphs: object, side: int, shift: int = 0):

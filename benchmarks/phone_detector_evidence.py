@@ -104,16 +104,6 @@ def phone_scores(
     return out
 
 
-def auc(pairs: Sequence[tuple[bool, float]]) -> str:
-    """Mann-Whitney AUC of phone users' scores above the others' (ties a half), with the counts."""
-    pos = [v for y, v in pairs if y and np.isfinite(v)]
-    neg = [v for y, v in pairs if not y and np.isfinite(v)]
-    if not pos or not neg:
-        return f"- ({len(pos)}+{len(neg)})"
-    a, b = np.array(pos)[:, None], np.array(neg)[None, :]
-    return f"{float(np.mean((a > b) + 0.5 * (a == b))):.2f} ({len(pos)}+{len(neg)})"
-
-
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(
         prog="phone_detector_evidence.py",
@@ -144,37 +134,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     from trustnav.perception.detector import PersonDetector
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
     from trustnav.perception.phone import PoseGeometryPhoneClassifier
-    from trustnav.perception.types import box_iou
 
     warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype")
-    seq = te.SHARED / "data" / "sequences"
-    sets = {"walk_a": seq / "walk_a", "phone_a": seq / "phone_a", "street": te.SHARED / "data" / "street_images"}
-    if args.rendered:
-        sets |= {name: args.rendered / name for name in ("rendered", "rendered_heldout")}
+    sets = te.evidence_sets(args.rendered)
     detector, geometry = PersonDetector(), PoseGeometryPhoneClassifier()
     rows, seconds, runs = [], 0.0, 0
     with MediaPipePoseBackend(video=False) as backend:
-        for name, folder in sets.items():
-            for frame_name, labelled in te.load_labels(name)["frames"].items():
-                image = cv2.imread(str(folder / frame_name))
-                if image is None:
-                    raise SystemExit(f"cannot read {folder / frame_name}")
-                frame = np.ascontiguousarray(image[:, :, ::-1])
-                people = backend(frame)
-                for label in labelled["people"]:
-                    if label.get("phone") is None or not people:
-                        continue
-                    person = max(people, key=lambda q: box_iou(q.bbox, label["bbox"]))
-                    if box_iou(person.bbox, label["bbox"]) < 0.5:
-                        continue
-                    height = float(person.bbox[3] - person.bbox[1])
-                    t0 = time.perf_counter()
-                    s = phone_scores(detector, frame, person.keypoints, person.confidences, height, args.placements)
-                    seconds += time.perf_counter() - t0
-                    runs += s.pop("runs")
-                    s["posture"] = float(geometry(frame, person))
-                    rows.append({"set": name, "frame": frame_name, "id": label["id"], "phone": bool(label["phone"]),
-                                 "height": height, "path": folder / frame_name, "person": person, **s})  # fmt: skip
+        for name, frame_name, frame, label, person in te.labelled_people(sets, backend, "phone"):
+            height = float(person.bbox[3] - person.bbox[1])
+            t0 = time.perf_counter()
+            s = phone_scores(detector, frame, person.keypoints, person.confidences, height, args.placements)
+            seconds += time.perf_counter() - t0
+            runs += s.pop("runs")
+            s["posture"] = float(geometry(frame, person))
+            rows.append({"set": name, "frame": frame_name, "id": label["id"], "phone": bool(label["phone"]),
+                         "height": height, "path": sets[name] / frame_name, "person": person, **s})  # fmt: skip
     names = ("posture", *SCHEMES)
     print(f"{len(rows)} people, {runs} network runs, {1000 * seconds / max(runs, 1):.0f} ms a run "
           f"(load {os.getloadavg()[0]:.1f})\n")  # fmt: skip
@@ -193,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         for lo, hi in (*te.HEIGHT_BANDS, (0, te.HEIGHT_BANDS[-1][1])):
             r = [x for x in chosen if lo <= x["height"] < hi]
             band = "all" if (lo, hi) == (0, te.HEIGHT_BANDS[-1][1]) else te.band_name(lo, hi)
-            print(f"| {title} | {band} | " + " | ".join(auc([(x["phone"], x[n]) for x in r]) for n in names) + " |")
+            print(f"| {title} | {band} | " + " | ".join(te.auc([(x["phone"], x[n]) for x in r]) for n in names) + " |")
     print("\nThe real people (phone label, height px, posture cue, phone score per scheme)")
     print("| set | frame | person | phone | height | " + " | ".join(names) + " |")
     print("|---|---|---|---|---|" + "---|" * len(names))

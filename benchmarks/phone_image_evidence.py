@@ -51,18 +51,6 @@ def curled(landmarks: np.ndarray) -> bool:
     return float(np.mean([np.linalg.norm(landmarks[t] - palm) for t in (8, 12, 16, 20)])) / span < 1.0
 
 
-def auc(scores: list[tuple[bool, float]]) -> str:
-    """Mann-Whitney AUC of phone users' scores above the others' (ties count a half), with the count."""
-    pos = [v for y, v in scores if y and np.isfinite(v)]
-    neg = [v for y, v in scores if not y and np.isfinite(v)]
-    if not pos or not neg:
-        return f"- ({len(pos)}+{len(neg)})"
-    a = np.array(pos)[:, None]
-    b = np.array(neg)[None, :]
-    value = float(np.mean((a > b) + 0.5 * (a == b)))
-    return f"{value:.2f} ({len(pos)}+{len(neg)})"
-
-
 def evidence(frame: np.ndarray, person: object, face: object, geometry: object) -> dict[str, float]:
     """The per-person numbers of the second table (NaN where not measurable)."""
     from trustnav.perception.face import head_box
@@ -102,53 +90,37 @@ def main() -> None:
     from trustnav.perception.face import FaceEyeContact
     from trustnav.perception.mediapipe_backend import MediaPipePoseBackend
     from trustnav.perception.phone import PoseGeometryPhoneClassifier
-    from trustnav.perception.types import box_iou
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rendered", type=Path, help="folder holding rendered/ and rendered_heldout/ frames")
     args = ap.parse_args()
     warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype")
-    seq = te.SHARED / "data" / "sequences"
-    sets = {"walk_a": seq / "walk_a", "phone_a": seq / "phone_a", "street": te.SHARED / "data" / "street_images"}
-    if args.rendered:
-        sets |= {name: args.rendered / name for name in ("rendered", "rendered_heldout")}
+    sets = te.evidence_sets(args.rendered)
     rows = []
     face, geometry = FaceEyeContact(), PoseGeometryPhoneClassifier()
     with (
         MediaPipePoseBackend(video=False) as backend,
         mp.solutions.hands.Hands(static_image_mode=True, max_num_hands=2, min_detection_confidence=0.3) as hands,
     ):
-        for name, folder in sets.items():
-            for frame_name, labelled in te.load_labels(name)["frames"].items():
-                image = cv2.imread(str(folder / frame_name))
-                if image is None:
-                    raise SystemExit(f"cannot read {folder / frame_name}")
-                frame = np.ascontiguousarray(image[:, :, ::-1])
-                people = backend(frame)
-                for label in labelled["people"]:
-                    if label.get("phone") is None or not people:
-                        continue
-                    person = max(people, key=lambda q: box_iou(q.bbox, label["bbox"]))
-                    if box_iou(person.bbox, label["bbox"]) < 0.5:
-                        continue
-                    height = float(person.bbox[3] - person.bbox[1])
-                    found = held = False
-                    for k in WRIST_COCO:
-                        if person.confidences[k] < 0.3:
-                            continue
-                        x, y = person.keypoints[k]
-                        half = max(0.3 * height, 24.0) / 2
-                        x0, y0 = int(max(0.0, x - half)), int(max(0.0, y - half))
-                        crop = frame[y0 : int(y + half), x0 : int(x + half)]
-                        if crop.size == 0:
-                            continue
-                        result = hands.process(cv2.resize(crop, (256, 256), interpolation=cv2.INTER_CUBIC))
-                        if result.multi_hand_landmarks:
-                            found = True
-                            lm = np.array([(p.x, p.y) for p in result.multi_hand_landmarks[0].landmark])
-                            held = held or curled(lm)
-                    more = evidence(frame, person, face, geometry)
-                    rows.append((bool(label["phone"]), height, found, held, more, name in REAL))
+        for name, _, frame, label, person in te.labelled_people(sets, backend, "phone"):
+            height = float(person.bbox[3] - person.bbox[1])
+            found = held = False
+            for k in WRIST_COCO:
+                if person.confidences[k] < 0.3:
+                    continue
+                x, y = person.keypoints[k]
+                half = max(0.3 * height, 24.0) / 2
+                x0, y0 = int(max(0.0, x - half)), int(max(0.0, y - half))
+                crop = frame[y0 : int(y + half), x0 : int(x + half)]
+                if crop.size == 0:
+                    continue
+                result = hands.process(cv2.resize(crop, (256, 256), interpolation=cv2.INTER_CUBIC))
+                if result.multi_hand_landmarks:
+                    found = True
+                    lm = np.array([(p.x, p.y) for p in result.multi_hand_landmarks[0].landmark])
+                    held = held or curled(lm)
+            more = evidence(frame, person, face, geometry)
+            rows.append((bool(label["phone"]), height, found, held, more, name in REAL))
     print("| person height | people | a hand found | phone users: found | others: found | fingers curled |")
     print("|---|---|---|---|---|---|")
     for lo, hi in BINS:
@@ -174,7 +146,7 @@ def main() -> None:
             if hi == BINS[-1][1]
             else f"{lo}-{hi} px"
         )
-        print(f"| {span} | " + " | ".join(auc([(x[0], x[4][n]) for x in r]) for n in names) + " |")  # fmt: skip
+        print(f"| {span} | " + " | ".join(te.auc([(x[0], x[4][n]) for x in r]) for n in names) + " |")  # fmt: skip
     for lo, hi in ((0, 150), (150, BINS[-1][1]), (0, BINS[-1][1])):
         r = [x for x in rows if lo <= x[1] < hi and x[5]]
         span = (
@@ -184,7 +156,7 @@ def main() -> None:
             if lo == 0
             else f"real sets, >= {lo} px"
         )
-        print(f"| {span} | " + " | ".join(auc([(x[0], x[4][n]) for x in r]) for n in names) + " |")  # fmt: skip
+        print(f"| {span} | " + " | ".join(te.auc([(x[0], x[4][n]) for x in r]) for n in names) + " |")  # fmt: skip
 
 
 if __name__ == "__main__":

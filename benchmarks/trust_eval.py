@@ -39,7 +39,7 @@ import itertools
 import json
 import sys
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +215,53 @@ def evaluate(labels: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) ->
 
 def load_labels(name: str) -> dict[str, Any]:
     return json.loads((LABELS / f"{name}.json").read_text())
+
+
+def evidence_sets(rendered: Path | None, names: Sequence[str] = ("rendered", "rendered_heldout")) -> dict[str, Path]:
+    """The labelled sets the cue-evidence scripts read (``gaze_evidence.py``, ``phone_*_evidence.py``):
+    the real ones in ../shared, and the rendered ``names`` under ``rendered`` (``--keep DIR``)."""
+    seq = SHARED / "data" / "sequences"
+    sets = {"walk_a": seq / "walk_a", "phone_a": seq / "phone_a", "street": SHARED / "data" / "street_images"}
+    if rendered is not None:
+        sets |= {name: rendered / name for name in names}
+    return sets
+
+
+def labelled_people(sets: Mapping[str, Path], backend: Any, cue: str) -> Iterator[tuple[str, str, Any, Any, Any]]:
+    """(set, frame name, RGB frame, label, person) for every person labelled for ``cue``
+    ("phone" or "eye_contact") whom ``backend`` (a still-image pose backend) boxes at IoU >= 0.5."""
+    import cv2
+
+    from trustnav.perception.types import box_iou
+
+    for name, folder in sets.items():
+        for frame_name, labelled in load_labels(name)["frames"].items():
+            wanted = [lab for lab in labelled["people"] if lab.get(cue) is not None]
+            if not wanted:
+                continue
+            image = cv2.imread(str(folder / frame_name))
+            if image is None:
+                raise SystemExit(f"cannot read {folder / frame_name}")
+            frame = np.ascontiguousarray(image[:, :, ::-1])
+            people = backend(frame)
+            for lab in wanted:
+                if not people:
+                    continue
+                person = max(people, key=lambda q: box_iou(q.bbox, lab["bbox"]))
+                if box_iou(person.bbox, lab["bbox"]) >= 0.5:
+                    yield name, frame_name, frame, lab, person
+
+
+def auc(pairs: Iterable[tuple[bool, float]]) -> str:
+    """Mann-Whitney AUC of the positives' scores above the negatives' (ties a half), with the counts
+    (non-finite scores left out)."""
+    pairs = list(pairs)
+    pos = [v for y, v in pairs if y and np.isfinite(v)]
+    neg = [v for y, v in pairs if not y and np.isfinite(v)]
+    if not pos or not neg:
+        return f"- ({len(pos)}+{len(neg)})"
+    a, b = np.array(pos)[:, None], np.array(neg)[None, :]
+    return f"{float(np.mean((a > b) + 0.5 * (a == b))):.2f} ({len(pos)}+{len(neg)})"
 
 
 def inputs_of(name: str, labels: Mapping[str, Any], cache: Path) -> list[Path]:
