@@ -14,6 +14,7 @@ labels agree (the person-frames of the videos no one labelled by hand; see docs/
     python benchmarks/phone_track_evidence.py --record /tmp/poses.pkl [--keep DIR]   # ~2 min on 2 cores
     python benchmarks/phone_track_evidence.py --poses /tmp/poses.pkl                  # the variants, ~seconds
     python benchmarks/phone_track_evidence.py --poses /tmp/poses.pkl --calibrate      # + the Platt map, LOSO
+    python benchmarks/phone_track_evidence.py --poses /tmp/poses.pkl --forward        # + the forward filter
 """
 
 from __future__ import annotations
@@ -146,6 +147,104 @@ def variants() -> dict[str, Callable[[], Any]]:
     }
 
 
+class ForwardFilter:
+    """The lead "evidence over a track's whole life" as a two-state HMM forward filter (not kept; measured
+    by ``--forward``): phone use u in {0, 1} per track, sticky (it relaxes to ``prior`` with time
+    constant ``persist_s``); each frame's single-frame geometry g (``TemporalPhoneModel``'s) is
+    evidence through a Platt map ``frame_map`` (P(u | g) on person-frames), its log-likelihood ratio
+    tempered by min(1, dt / ``corr_s``) (frames closer than the evidence's correlation time are not
+    independent looks). Output: P(u = 1 | the track's frames so far)."""
+
+    def __init__(self, frame_map: Any, prior: float = 0.5, persist_s: float = 10.0, corr_s: float = 0.1) -> None:
+        from trustnav.perception.phone import TemporalPhoneModel
+
+        self.frame_map, self.prior, self.persist_s, self.corr_s = frame_map, prior, persist_s, corr_s
+        self.geometry = TemporalPhoneModel()
+        self.state: dict[int, tuple[float, float]] = {}
+
+    def add_pose(self, track_id: int, time: float | None, kp: Any, conf: Any) -> Any:
+        from trustnav.perception.phone import TemporalPhoneResult
+
+        g = self.geometry.add_pose(track_id, time, kp, conf).geometry
+        p = min(max(self.frame_map(g), 1e-6), 1 - 1e-6)
+        prior_lo = np.log(self.prior / (1 - self.prior))
+        llr = float(np.log(p / (1 - p))) - prior_lo
+        last = self.state.get(track_id)
+        if track_id < 0 or time is None or last is None or time - last[0] > 3.0 or time < last[0]:
+            lo = prior_lo + llr
+        else:
+            dt = time - last[0]
+            q = self.prior + (1 / (1 + np.exp(-last[1])) - self.prior) * np.exp(-dt / self.persist_s)
+            lo = float(np.log(q / (1 - q))) + min(1.0, dt / self.corr_s) * llr
+        if track_id >= 0 and time is not None:
+            self.state[track_id] = (time, lo)
+        out = float(1 / (1 + np.exp(-lo)))
+        return TemporalPhoneResult(out, g, out, 0.0, 0.0)
+
+
+def forward(rows: Mapping[str, Sequence[dict[str, Any]]], tuned: Sequence[str], held: Sequence[str]) -> None:
+    """The forward filter: the per-frame geometry's autocorrelation along tracks (its correlation
+    time), then the filter leave-one-set-out (per-frame map fitted on the other tuned sets' carried
+    labels) and, fitted on all tuned sets, on the held-out sets, for a few persistence times."""
+    from trustnav.perception.phone import PhoneCalibration, TemporalPhoneModel
+
+    geo = {n: [m.geometry for m in _replay_results(r, TemporalPhoneModel)] for n, r in rows.items()}
+    print("\nAutocorrelation of the per-frame geometry along tracks (each track's mean removed; 10 frames/s):")
+    for n in ("walk_a", "rendered_sequence"):
+        if n not in rows:
+            continue
+        tracks: dict[int, dict[int, float]] = {}
+        for r, g in zip(rows[n], geo[n], strict=True):
+            if r["track"] >= 0:
+                tracks.setdefault(r["track"], {})[round(r["time"] * 10)] = g
+        acf = []
+        for lag in range(6):
+            num = cnt = 0.0
+            for frames in tracks.values():
+                if len(frames) < 10:
+                    continue
+                x = np.array(list(frames.values()))
+                mean, var = x.mean(), x.var()
+                if var < 1e-6:
+                    continue
+                pairs = [(frames[i] - mean) * (frames[i + lag] - mean) / var for i in frames if i + lag in frames]
+                num, cnt = num + sum(pairs), cnt + len(pairs)
+            acf.append(f"{lag / 10:.1f} s: {num / max(cnt, 1):.2f}")
+        print(f"- {n}: " + ", ".join(acf))
+
+    def xy(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        pairs = [
+            (g, r["carried"]) for n in names for r, g in zip(rows[n], geo[n], strict=True) if r["carried"] is not None
+        ]
+        return np.array([p[0] for p in pairs], dtype=float), np.array([bool(p[1]) for p in pairs])
+
+    full = PhoneCalibration.fit(*xy(tuned))
+    print(
+        f"\nForward filter (per-frame map on all tuned sets: PhoneCalibration({full.intercept:.3f}, {full.slope:.3f})):"
+    )
+    print("| persistence, correlation time | LOSO labelled frames | LOSO carried | held out (map on all tuned) |")
+    print("|---|---|---|---|")
+    for persist, corr in ((5.0, 0.1), (10.0, 0.1), (20.0, 0.1), (10.0, 0.2), (10.0, 0.3)):
+        pooled: dict[str, list[tuple[bool, float]]] = {"label": [], "carried": []}
+        for s in tuned:
+            fmap = PhoneCalibration.fit(*xy([n for n in tuned if n != s]))
+            vals = replay(rows[s], lambda f=fmap, a=persist, b=corr: ForwardFilter(f, persist_s=a, corr_s=b))
+            for key in pooled:
+                pooled[key] += [(r[key], v) for r, v in zip(rows[s], vals, strict=True) if r[key] is not None]
+        ho = []
+        for n in held:
+            vals = replay(rows[n], lambda a=persist, b=corr: ForwardFilter(full, persist_s=a, corr_s=b))
+            ho += [(r["label"], v) for r, v in zip(rows[n], vals, strict=True) if r["label"] is not None]
+        print(f"| {persist:.0f} s, {corr:.1f} s | {_f(_counts(pooled['label']))} | {_f(_counts(pooled['carried']))} | "
+              f"{_f(_counts(ho))} |")  # fmt: skip
+
+
+def _replay_results(rows: Sequence[dict[str, Any]], make: Callable[[], Any]) -> list[Any]:
+    """As :func:`replay`, the models' whole results."""
+    models: dict[int, Any] = {}
+    return [models.setdefault(r["model"], make()).add_pose(r["track"], r["time"], r["kp"], r["conf"]) for r in rows]
+
+
 def _counts(pairs: Sequence[tuple[bool, float]]) -> dict[str, Any]:
     return te.binary_scores(pairs)
 
@@ -205,6 +304,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="also the raw cue's reliability and its Platt map, leave-one-set-out and on all sets",
     )
+    parser.add_argument("--forward", action="store_true",
+                        help="also the lead not kept: a two-state forward filter over each track's life")  # fmt: skip
     parser.add_argument("--raw-recording", action="store_true",
                         help="the poses were recorded before the calibration (skip the replay check)")  # fmt: skip
     args = parser.parse_args(argv)
@@ -237,6 +338,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             print(f"| {vname} | {gname} | {_f(scores(rr, vv))} | {_f(scores(rr, vv, 'carried'))} |")
     if args.calibrate:
         calibrate(rows, tuned, held)
+    if args.forward:
+        forward(rows, tuned, held)
 
 
 if __name__ == "__main__":
