@@ -119,12 +119,7 @@ def person_frames(data: Mapping[str, Any]) -> list[dict[str, Any]]:
 def replay(rows: Sequence[dict[str, Any]], make: Callable[[], Any]) -> list[float]:
     """Each row's phone value from a fresh model per sequence (``make()``, a ``TemporalPhoneModel``
     or anything with ``add_pose``), fed in the recorded order."""
-    models: dict[int, Any] = {}
-    out = []
-    for r in rows:
-        model = models.setdefault(r["model"], make())
-        out.append(float(model.add_pose(r["track"], r["time"], r["kp"], r["conf"]).phone))
-    return out
+    return [float(res.phone) for res in _replay_results(rows, make)]
 
 
 def scores(rows: Sequence[Mapping[str, Any]], values: Sequence[float], key: str = "label") -> dict[str, Any]:
@@ -242,7 +237,12 @@ def forward(rows: Mapping[str, Sequence[dict[str, Any]]], tuned: Sequence[str], 
 def _replay_results(rows: Sequence[dict[str, Any]], make: Callable[[], Any]) -> list[Any]:
     """As :func:`replay`, the models' whole results."""
     models: dict[int, Any] = {}
-    return [models.setdefault(r["model"], make()).add_pose(r["track"], r["time"], r["kp"], r["conf"]) for r in rows]
+    out = []
+    for r in rows:
+        if r["model"] not in models:
+            models[r["model"]] = make()
+        out.append(models[r["model"]].add_pose(r["track"], r["time"], r["kp"], r["conf"]))
+    return out
 
 
 def _counts(pairs: Sequence[tuple[bool, float]]) -> dict[str, Any]:
