@@ -201,8 +201,10 @@ def test_calibration_fit_recovers_a_logistic_map(seed):
     # separable labels give a finite, steep map with its 0.5 in the gap
     sep = PhoneCalibration.fit(np.r_[np.zeros(20), np.ones(20)], np.r_[np.zeros(20), np.ones(20)].astype(bool))
     assert 0.0 < sep.threshold < 1.0 and sep(1.0) > 0.95 > 0.05 > sep(0.0)
-    with pytest.raises(ValueError, match="both phone users and non-users"):
+    with pytest.raises(ValueError, match="both phone users and non-users, got 0 users of 5000"):
         PhoneCalibration.fit(x, np.zeros(x.size, dtype=bool))
+    with pytest.raises(ValueError, match=r"finite and of one length, got 3 values \(2 finite\) and 2 labels"):
+        PhoneCalibration.fit(np.array([0.1, np.nan, 0.3]), np.array([True, False]))
 
 
 def test_default_cues_give_the_calibrated_temporal_model():

@@ -225,7 +225,7 @@ class PhoneCalibration:
 
     The pose cue is built from rules, not fitted as a probability: on the labelled real people its
     values of 0.1-0.5 belong to phone users far more often than they say (docs/perception.md, "Phone
-    use: calibrated"). The map makes C_sm (the input of `smato_score`) a probability; it is monotone
+    use calibrated"). The map makes C_sm (the input of `smato_score`) a probability; it is monotone
     (``slope`` > 0), so it orders people as C does, and moves the 0.5 verdict to C = :attr:`threshold`.
     Fitted by :meth:`fit` (``benchmarks/phone_track_evidence.py --calibrate``).
     """
@@ -259,9 +259,11 @@ class PhoneCalibration:
         x = np.asarray(values, dtype=float).ravel()
         y = np.asarray(labels, dtype=float).ravel()
         if x.shape != y.shape or not np.isfinite(x).all():
-            raise ValueError("values and labels must be finite arrays of one length")
+            raise ValueError(f"PhoneCalibration.fit: values and labels must be finite and of one length, got "
+                             f"{x.size} values ({int(np.isfinite(x).sum())} finite) and {y.size} labels")  # fmt: skip
         if not (0 < y.sum() < y.size):
-            raise ValueError("fitting a calibration needs both phone users and non-users")
+            raise ValueError(f"PhoneCalibration.fit: the labels need both phone users and non-users, got "
+                             f"{int(y.sum())} users of {y.size}")  # fmt: skip
         design = np.stack([np.ones_like(x), x], axis=1)
         w = np.zeros(2)
         for _ in range(100):
