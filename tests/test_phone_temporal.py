@@ -10,7 +10,9 @@ import pytest
 
 from trustnav.perception.cues import PhoneUseCue, default_cues, run_cue
 from trustnav.perception.phone import (
+    LABELLED_PHONE_CALIBRATION,
     CropPhoneClassifier,
+    PhoneCalibration,
     PoseGeometryPhoneClassifier,
     TemporalPhoneModel,
     fuse_crop,
@@ -167,3 +169,59 @@ def test_crop_classifier_reads_a_tflite_file_with_opencv():
     frame = np.random.default_rng(4).integers(0, 255, (400, 400, 3), dtype=np.uint8)
     p = _person(texter(0.0, np.random.default_rng(5)))
     assert 0.0 <= crop(frame, p) <= 1.0
+
+
+class _Eye:
+    def predict(self, x):
+        return np.zeros(len(x))
+
+
+def test_calibration_is_a_monotone_probability_map():
+    cal = LABELLED_PHONE_CALIBRATION
+    ps = np.array([cal(c) for c in np.linspace(0.0, 1.0, 201)])
+    assert np.all((ps > 0.0) & (ps < 1.0)) and np.all(np.diff(ps) > 0)  # orders people as the cue does
+    assert cal(cal.threshold) == pytest.approx(0.5)
+    assert 0.0 < cal.threshold < 0.5  # the labelled people's cue under-reports phone use near 0.5
+    assert math.isnan(cal(math.nan))  # not judged stays not judged
+    assert PhoneCalibration(-800.0, 1.0)(0.0) == pytest.approx(0.0) and PhoneCalibration(800.0, 1.0)(0.0) == 1.0
+    for bad in ((0.0, 0.0), (0.0, -2.0), (math.nan, 1.0), (0.0, math.inf)):
+        with pytest.raises(ValueError, match="finite intercept and a positive slope"):
+            PhoneCalibration(*bad)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_calibration_fit_recovers_a_logistic_map(seed):
+    rng = np.random.default_rng(seed)
+    truth = PhoneCalibration(-3.0, 7.0)
+    x = rng.uniform(0.0, 1.0, 5000)
+    y = rng.uniform(size=x.size) < np.array([truth(v) for v in x])
+    fit = PhoneCalibration.fit(x, y)
+    assert fit.intercept == pytest.approx(-3.0, abs=0.4) and fit.slope == pytest.approx(7.0, abs=0.8)
+    assert fit.threshold == pytest.approx(truth.threshold, abs=0.03)
+    # separable labels give a finite, steep map with its 0.5 in the gap
+    sep = PhoneCalibration.fit(np.r_[np.zeros(20), np.ones(20)], np.r_[np.zeros(20), np.ones(20)].astype(bool))
+    assert 0.0 < sep.threshold < 1.0 and sep(1.0) > 0.95 > 0.05 > sep(0.0)
+    with pytest.raises(ValueError, match="both phone users and non-users, got 0 users of 5000"):
+        PhoneCalibration.fit(x, np.zeros(x.size, dtype=bool))
+    with pytest.raises(ValueError, match=r"finite and of one length, got 3 values \(2 finite\) and 2 labels"):
+        PhoneCalibration.fit(np.array([0.1, np.nan, 0.3]), np.array([True, False]))
+
+
+def test_default_cues_give_the_calibrated_temporal_model():
+    cue = default_cues(_Eye(), None)[1]  # type: ignore[arg-type]
+    raw_cue = default_cues(_Eye(), None, phone_calibration=None)[1]  # type: ignore[arg-type]
+    assert cue.temporal.calibration is LABELLED_PHONE_CALIBRATION and raw_cue.temporal.calibration is None
+    with pytest.raises(ValueError, match="calibration must be a PhoneCalibration"):
+        TemporalPhoneModel(calibration=(0.0, 1.0))  # type: ignore[arg-type]
+    rng = np.random.default_rng(3)
+    frame = np.zeros((400, 800, 3), dtype=np.uint8)
+    for t in np.arange(0.0, 2.5, 0.1):
+        people = [_person(walker(t)), _person(texter(t, rng))]
+        got = run_cue(cue, frame, people, track_ids=[1, 2], time=float(t))
+        raw = run_cue(raw_cue, frame, people, track_ids=[1, 2], time=float(t))
+        assert got == pytest.approx([LABELLED_PHONE_CALIBRATION(v) for v in raw])
+    assert got[1] > 0.95 and got[0] < got[1]  # the texter still sure, the walker below
+    # the single-frame reading (no track, no time) is calibrated alike; geometry stays the model's own
+    model = TemporalPhoneModel(calibration=LABELLED_PHONE_CALIBRATION)
+    alone = model.add_pose(-1, None, texter(0.0, rng))
+    assert alone.phone == pytest.approx(LABELLED_PHONE_CALIBRATION(alone.geometry))

@@ -22,7 +22,14 @@ from numpy.typing import NDArray
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, face_confidences, head_yaw
 from trustnav.perception.face import FACE_FIELDS, FaceConfig, FaceEyeContact, FaceResult, fuse_eye_contact
 from trustnav.perception.looking import LookingModel, normalise_keypoints
-from trustnav.perception.phone import PhoneClassifier, PoseGeometryPhoneClassifier, TemporalPhoneModel, fuse_crop
+from trustnav.perception.phone import (
+    LABELLED_PHONE_CALIBRATION,
+    PhoneCalibration,
+    PhoneClassifier,
+    PoseGeometryPhoneClassifier,
+    TemporalPhoneModel,
+    fuse_crop,
+)
 from trustnav.perception.types import Person
 from trustnav.trust.sighting import EYE_CONTACT, SMARTPHONE
 
@@ -243,7 +250,10 @@ class PhoneUseCue:
 
 
 def default_cues(
-    eye_model: LookingModel, phone: PhoneClassifier | None = None, face: FaceEyeContact | FaceConfig | None = None
+    eye_model: LookingModel,
+    phone: PhoneClassifier | None = None,
+    face: FaceEyeContact | FaceConfig | None = None,
+    phone_calibration: PhoneCalibration | None = LABELLED_PHONE_CALIBRATION,
 ) -> tuple[CueExtractor, ...]:
     """The paper's image cues: eye contact and smartphone use.
 
@@ -251,13 +261,15 @@ def default_cues(
     looked at only on people at least ``FaceConfig.min_person_px`` tall, LOOKING alone below), with
     the both-hands posture veto (:class:`EyeContactCue`). ``face``: an analyser to share or its
     configuration. Smartphone use: by default the pose geometry made temporal per track
-    (:class:`~trustnav.perception.phone.TemporalPhoneModel`); a user's ``phone`` classifier is used as
-    given, frame by frame."""
+    (:class:`~trustnav.perception.phone.TemporalPhoneModel`), its value made a probability by
+    ``phone_calibration`` (the Platt map fitted on the labelled sets,
+    :data:`~trustnav.perception.phone.LABELLED_PHONE_CALIBRATION`; None: the model's raw value); a
+    user's ``phone`` classifier is used as given, frame by frame."""
     geometry = phone if isinstance(phone, PoseGeometryPhoneClassifier) else PoseGeometryPhoneClassifier()
     face = face if isinstance(face, FaceEyeContact) else FaceEyeContact(face)
     eye = FaceEyeContactCue(eye_model, face=face, posture=geometry)
     if phone is None or isinstance(phone, PoseGeometryPhoneClassifier):
-        return (eye, PhoneUseCue(geometry, temporal=TemporalPhoneModel(geometry)))
+        return (eye, PhoneUseCue(geometry, temporal=TemporalPhoneModel(geometry, calibration=phone_calibration)))
     return (eye, PhoneUseCue(phone))
 
 

@@ -31,7 +31,9 @@ from numpy.typing import NDArray
 from trustnav.perception.types import Person
 
 __all__ = [
+    "LABELLED_PHONE_CALIBRATION",
     "CropPhoneClassifier",
+    "PhoneCalibration",
     "PhoneClassifier",
     "PoseGeometryPhoneClassifier",
     "TemporalPhoneModel",
@@ -214,6 +216,75 @@ class PoseGeometryPhoneClassifier:
         return self.parts(keypoints, confidences)[2]
 
 
+# -- calibration: the cue's value as a probability ----------------------------------------------
+
+
+@dataclass(frozen=True)
+class PhoneCalibration:
+    """P(phone use | C) = 1 / (1 + exp(-(intercept + slope * C))): a Platt map of the phone cue's value C.
+
+    The pose cue is built from rules, not fitted as a probability: on the labelled real people its
+    values of 0.1-0.5 belong to phone users far more often than they say (docs/perception.md, "Phone
+    use calibrated"). The map makes C_sm (the input of `smato_score`) a probability; it is monotone
+    (``slope`` > 0), so it orders people as C does, and moves the 0.5 verdict to C = :attr:`threshold`.
+    Fitted by :meth:`fit` (``benchmarks/phone_track_evidence.py --calibrate``).
+    """
+
+    intercept: float
+    slope: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.intercept) and math.isfinite(self.slope) and self.slope > 0):
+            got = f"{self.intercept!r}, {self.slope!r}"
+            raise ValueError(f"PhoneCalibration needs a finite intercept and a positive slope, got {got}")
+
+    def __call__(self, confidence: float) -> float:
+        """The calibrated probability of ``confidence`` (NaN stays NaN: not judged)."""
+        c = float(confidence)
+        if math.isnan(c):
+            return math.nan
+        z = self.intercept + self.slope * c
+        return float(1.0 / (1.0 + math.exp(-z))) if z >= 0 else float(math.exp(z) / (1.0 + math.exp(z)))
+
+    @property
+    def threshold(self) -> float:
+        """The cue value C that maps to probability 0.5."""
+        return -self.intercept / self.slope
+
+    @classmethod
+    def fit(cls, values: NDArray[np.float64], labels: NDArray[np.bool_], ridge: float = 1e-3) -> PhoneCalibration:
+        """Logistic regression of ``labels`` (phone use true/false) on the cue ``values`` (Newton's
+        method; ``ridge`` * |(intercept, slope)|^2 added to the negative log-likelihood so that
+        separable data give a finite map). ValueError unless both classes are present."""
+        x = np.asarray(values, dtype=float).ravel()
+        y = np.asarray(labels, dtype=float).ravel()
+        if x.shape != y.shape or not np.isfinite(x).all():
+            raise ValueError(f"PhoneCalibration.fit: values and labels must be finite and of one length, got "
+                             f"{x.size} values ({int(np.isfinite(x).sum())} finite) and {y.size} labels")  # fmt: skip
+        if not (0 < y.sum() < y.size):
+            raise ValueError(f"PhoneCalibration.fit: the labels need both phone users and non-users, got "
+                             f"{int(y.sum())} users of {y.size}")  # fmt: skip
+        design = np.stack([np.ones_like(x), x], axis=1)
+        w = np.zeros(2)
+        for _ in range(100):
+            p = 1.0 / (1.0 + np.exp(-(design @ w)))
+            grad = design.T @ (p - y) + 2.0 * ridge * w
+            hess = (design * (p * (1.0 - p))[:, None]).T @ design + 2.0 * ridge * np.eye(2)
+            step = np.linalg.solve(hess, grad)
+            w = w - step
+            if float(np.abs(step).max()) < 1e-10:
+                break
+        return cls(float(w[0]), float(w[1]))
+
+
+#: The Platt map of the default phone cue (the temporal pose model) fitted on every labelled
+#: person-frame of walk_a, phone_a, street and rendered, the labels carried along each labelled
+#: person's track between agreeing labelled frames (``benchmarks/phone_track_evidence.py
+#: --calibrate``; 197 person-frames). Its 0.5 verdict lies at C = 0.419. Leave-one-set-out, the
+#: maps fitted on three sets give phone F1 0.877 on the fourth's labelled frames (docs/perception.md).
+LABELLED_PHONE_CALIBRATION = PhoneCalibration(-2.888, 6.894)
+
+
 # -- phone use over time --------------------------------------------------------------------------
 
 
@@ -273,6 +344,10 @@ class TemporalPhoneModel:
     (not frames) of history, so the result does not depend on the frame rate. A track not seen for
     ``reset_after_s`` seconds (or whose time goes backwards) restarts; histories never mix tracks;
     a person without a track ID (-1) or without a time gets geometry only.
+
+    ``calibration``: a :class:`PhoneCalibration` applied to ``phone`` (C_sm as a probability;
+    ``geometry``, ``temporal`` and ``weight`` stay the model's own); the default cues use
+    :data:`LABELLED_PHONE_CALIBRATION`, the model alone none.
     """
 
     def __init__(
@@ -288,6 +363,7 @@ class TemporalPhoneModel:
         split: tuple[float, float] = (0.1, 0.25),
         reset_after_s: float = 3.0,
         min_wrist_confidence: float = 0.5,
+        calibration: PhoneCalibration | None = None,
     ) -> None:
         if not (window_s > 0 and reset_after_s > 0):
             raise ValueError("window_s and reset_after_s must be positive seconds")
@@ -306,6 +382,9 @@ class TemporalPhoneModel:
         self.split = split
         self.reset_after_s = float(reset_after_s)
         self.min_wrist_confidence = float(min_wrist_confidence)
+        if calibration is not None and not isinstance(calibration, PhoneCalibration):
+            raise ValueError(f"calibration must be a PhoneCalibration, got {type(calibration).__name__}")
+        self.calibration = calibration
         self._tracks: dict[int, _Track] = {}
 
     def reset(self) -> None:
@@ -363,7 +442,7 @@ class TemporalPhoneModel:
         if track_id is None or track_id < 0 or time is None or not math.isfinite(time):
             texting, calling, pair = self.geometry.parts(kp, None if confidences is None else conf, face=face)
             g = float(max(texting.max(), calling.max(), pair))
-            return TemporalPhoneResult(g, g, g, 0.0, 0.0)
+            return self._result(g, g, g, 0.0, 0.0)
         texting, calling, pair = self.geometry.parts(kp, conf, facing=1.0, face=face)
         hands = np.maximum(texting, pair)
         t = float(time)
@@ -396,7 +475,7 @@ class TemporalPhoneModel:
         cues = facing * np.maximum(np.stack(tr.hands), np.stack(tr.calls))  # (n, 2)
         g = float(cues[-1].max())
         if len(tr.times) < 2:
-            return TemporalPhoneResult(g, g, g, 0.0, history)
+            return self._result(g, g, g, 0.0, history)
         # G_w: mean cue over the frames the wrist was seen (an unseen wrist is no evidence either way)
         seen = np.sum(tr.seen, axis=0)
         held = np.sum(cues, axis=0) / np.maximum(seen, max(1.0, 0.5 * len(tr.times)))
@@ -422,6 +501,12 @@ class TemporalPhoneModel:
         s = float((held * (1.0 - self.motion_weight * (1.0 - still))).max()) * (1.0 - gait)
         w = self.max_weight * min(1.0, history / self.window_s)
         phone = float(np.clip((1.0 - w) * g + w * s, 0.0, 1.0))
+        return self._result(phone, g, s, w, history)
+
+    def _result(self, phone: float, g: float, s: float, w: float, history: float) -> TemporalPhoneResult:
+        """The reading, ``phone`` through the calibration where there is one."""
+        if self.calibration is not None:
+            phone = self.calibration(phone)
         return TemporalPhoneResult(phone, g, s, w, history)
 
 
