@@ -3,8 +3,8 @@
 Reads drives recorded by ``region_breakdown.py --render --save`` (calibration worlds, disjoint from
 the worlds the regions are judged on), places every recorded person with the render sensing's
 localiser (``--set`` replaces its fields) and whitens each raw placement's error against the truth
-by its own sigma along and across the line of sight. Per person class (standers: the truth does
-not move; walkers) it prints:
+by its own sigma along and across the line of sight. Per person class (standers; Case II's slow
+walker in her walking pose and in her texting pose) it prints:
 
 * the rms of the whitened errors along and across (1 for a calibrated single frame: the sigma
   scale the localiser's covariance would need);
@@ -42,13 +42,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig, pose_change
 from trustnav.perception.world_tracking import correlated_error_factor
 from trustnav.sim.driving.episode import street_of
+from trustnav.sim.driving.world import RENDER_ERROR_CORRELATION_S, RENDER_ERROR_SHARED, RENDER_POSE_CHANGE
 
 LAGS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 
 
 def series(rec: dict, localiser: dict) -> list[dict]:
     """Per pedestrian of one recorded drive: times, whitened along / across errors of the raw
-    placements, their poses and whether the truth moved (a walker)."""
+    placements, their poses and the person's class (standing, or moving in the run's pose)."""
     sc = rec["scenario"]
     loc = GroundLocaliser(dataclasses.replace(sc.sensing.localiser(rec["keypoints"]), **localiser))
     ground = street_of(sc).ground_height
@@ -76,10 +77,12 @@ def series(rec: dict, localiser: dict) -> list[dict]:
             s["shape"].append(e.shape)
             s["truth"].append(np.array(truth[j], dtype=float))
     out = []
-    for s in per.values():
-        moved = np.ptp(np.array(s["truth"]), axis=0).max() if len(s["truth"]) > 1 else 0.0
+    for j, s in per.items():
+        kind = "standers"
+        if any(sc.pedestrians[j].velocity):  # Case II's slow walker: her pose is the run's
+            kind = "moving, " + ("texting pose" if rec["att"] is False else "walking pose")
         out.append({**s, "t": np.array(s["t"]), "along": np.array(s["along"]), "across": np.array(s["across"]),
-                    "walker": bool(moved > 0.5)})  # fmt: skip
+                    "kind": kind})  # fmt: skip
     return out
 
 
@@ -185,13 +188,9 @@ def main(argv: list[str] | None = None) -> int:
             people += series(rec, loc)
     print(f"{len(args.recordings)} recordings, {len(people)} person-drives, load {os.getloadavg()[0]:.1f}"
           + (f"; localiser with {' '.join(args.set)}" if args.set else ""))  # fmt: skip
-    pose_scale = 0.03  # the render sensing's pose_change (world.RENDER_POSE_CHANGE)
-    for name, group in (
-        ("standers", [p for p in people if not p["walker"]]),
-        ("walkers", [p for p in people if p["walker"]]),
-    ):
-        if not group:
-            continue
+    pose_scale = RENDER_POSE_CHANGE  # the render sensing's pose_change
+    for name in sorted({p["kind"] for p in people}, reverse=True):
+        group = [p for p in people if p["kind"] == name]
         along = np.concatenate([p["along"] for p in group])
         across = np.concatenate([p["across"] for p in group])
         bias = np.array([p["along"].mean() for p in group])
@@ -209,8 +208,9 @@ def main(argv: list[str] | None = None) -> int:
         for rate, span, f in ((10.0, 1.0, f10), (10.0, 2.0, f10), (1.0, 3.0, f1), (1.0, 5.0, f1)):
             es = min(1.0, shared / f) if f and math.isfinite(f) else shared
             model = correlated_error_factor(1.0 / rate, tau, shared)
+            main_factor = correlated_error_factor(1.0 / rate, RENDER_ERROR_CORRELATION_S, RENDER_ERROR_SHARED * f)
             print(f"  {rate:g} frames/s: error_shared {es:.3f} (fit / pose factor); the tracker's factor {model:.2f} "
-                  f"(main {correlated_error_factor(1.0 / rate, 2.2, 0.66 * f):.2f}); measured n var(mean) / var over "
+                  f"(main {main_factor:.2f}); measured n var(mean) / var over "
                   f"{span:g} s spans {measured_inflation(group, rate, span):.2f}")  # fmt: skip
     return 0
 
