@@ -3,8 +3,8 @@
 Reads drives recorded by ``region_breakdown.py --render --save`` (calibration worlds, disjoint from
 the worlds the regions are judged on), places every recorded person with the render sensing's
 localiser (``--set`` replaces its fields) and whitens each raw placement's error against the truth
-by its own sigma along and across the line of sight. Per person class (standers; Case II's slow
-walker in her walking pose and in her texting pose) it prints:
+by its own sigma along and across the line of sight. Per person class (standers in each pose;
+Case II's slow walker in her walking pose and in her texting pose) it prints:
 
 * the rms of the whitened errors along and across (1 for a calibrated single frame: the sigma
   scale the localiser's covariance would need);
@@ -17,7 +17,12 @@ walker in her walking pose and in her texting pose) it prints:
   standers' frame pairs one camera period apart, the lags the tracker folds in);
 * the variance inflation factor the tracker then uses (``correlated_error_factor``) at 1 and 10
   frames/s beside the one measured directly: n var(mean of n frames) / var(frame) over spans of
-  the standers' drives.
+  the drives (batch means);
+* the batch-means fit: the linear fade ends at the first lag whose correlation is <= 0 (the
+  initial positive sequence of the autocorrelation, Geyer 1992), and its share makes the tracker's
+  factor at 10 frames/s the inflation measured over the longest spans (4 s) the drives hold.
+  Unlike the least-squares fit it counts the negative correlation of far lags (a stander's range
+  error changes sign as the car approaches), which is what a track's average over seconds sees.
 
     python benchmarks/render_error_fit.py /tmp/rec/case-1_10_4*.pkl /tmp/rec/case-1_1_4*.pkl
 
@@ -44,6 +49,7 @@ from trustnav.perception.world_tracking import correlated_error_factor
 from trustnav.sim.driving.episode import street_of
 from trustnav.sim.driving.world import RENDER_ERROR_CORRELATION_S, RENDER_ERROR_SHARED, RENDER_POSE_CHANGE
 
+BATCH_SPANS = (1.0, 2.0, 3.0, 4.0)
 LAGS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 
 
@@ -78,7 +84,7 @@ def series(rec: dict, localiser: dict) -> list[dict]:
             s["truth"].append(np.array(truth[j], dtype=float))
     out = []
     for j, s in per.items():
-        kind = "standers"
+        kind = f"standers, {sc.pedestrians[j].pose} pose"
         if any(sc.pedestrians[j].velocity):  # Case II's slow walker: her pose is the run's
             kind = "moving, " + ("texting pose" if rec["att"] is False else "walking pose")
         out.append({**s, "t": np.array(s["t"]), "along": np.array(s["along"]), "across": np.array(s["across"]),
@@ -212,6 +218,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {rate:g} frames/s: error_shared {es:.3f} (fit / pose factor); the tracker's factor {model:.2f} "
                   f"(main {main_factor:.2f}); measured n var(mean) / var over "
                   f"{span:g} s spans {measured_inflation(group, rate, span):.2f}")  # fmt: skip
+        # the batch-means estimate: the linear fade ends where the correlation first turns <= 0
+        # (the initial positive sequence, Geyer 1992), and its share makes the tracker's factor at
+        # 10 frames/s the measured inflation of the longest spans the drives hold (batch means: n
+        # var(mean of n frames) / var(frame), which counts the negative correlations of far lags)
+        zero = next((lag for lag, r, n, _ in rows if n > 0 and r <= 0.0), LAGS[-1])
+        spans = [(span, measured_inflation(group, 10.0, span)) for span in BATCH_SPANS]
+        spans = [(span, v) for span, v in spans if math.isfinite(v)]
+        if spans:
+            span, vif = spans[-1]
+            unit = correlated_error_factor(0.1, zero, 1.0) - 1.0  # the factor's growth per unit share
+            s_bm = min(1.0, max(0.0, (vif - 1.0) / unit)) if unit > 0 else 0.0
+            es = min(1.0, s_bm / f10) if f10 and math.isfinite(f10) else s_bm
+            print("  batch means at 10 frames/s: " + ", ".join(f"{a:g} s {v:.2f}" for a, v in spans)
+                  + f"; fade ends at {zero:g} s (first correlation <= 0): share {s_bm:.3f}, error_shared "
+                  f"{es:.3f} (/ pose factor), error_correlation_s {zero:g}; the tracker's factor "
+                  f"{correlated_error_factor(0.1, zero, s_bm):.2f} at 10 frames/s, "
+                  f"{correlated_error_factor(1.0, zero, es * f1):.2f} at 1")  # fmt: skip
     return 0
 
 
