@@ -19,7 +19,12 @@ A rendered drive has no randomness of its own (the seed draws only the keypoint 
 the controller input's), so without ``--vary`` every render seed drives the same world and gives the
 same figures. ``--vary`` draws each seed's world from the seed (:func:`varied`): each pedestrian
 moved along the road by N(0, 1 m) and across it by N(0, 0.2 m), turned by U(-20, 20) deg, at a random
-phase of its sway; the figures then pool different detector errors.
+phase of its sway; the figures then pool different detector errors. A render cell is judged on ten
+varied worlds (``--render-seeds 10 --vary``; evaluation worlds 0-9 and 300-309, calibration worlds
+400-419 for fits only; docs/perceived.md, seventh pass): three worlds are six person-drives, too few
+to tell a calibrated region from a wide one. At 10 frames/s, record the worlds one at a time in the
+background with ``region_breakdown.py --render --seeds 1 --first-seed S --save`` and pool them
+with ``region_breakdown.py --load ... --claims`` (the same drives, coverage and claims per world).
 """
 
 from __future__ import annotations

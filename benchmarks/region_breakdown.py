@@ -15,7 +15,9 @@ is the recorded one), under ablations of the tracker:
 
 Per person (pedestrian index) and per run it prints: frames, the truth inside the 90 % region of
 the track and of the raw placement, their errors along and across the line of sight in units of
-their own sigma (rms; 1 for a calibrated region), and the track's median walking probability.
+their own sigma (rms; 1 for a calibrated region; "along q90": the 90 % quantile of the track's
+|along error| over 1.645, 1 where the core of the errors is calibrated whatever their tail), and the
+track's median walking probability.
 
     python benchmarks/region_breakdown.py --case case-2 --rate 10 --seeds 20
     python benchmarks/region_breakdown.py --case case-1 --rate 10 --render --seeds 3
@@ -95,7 +97,10 @@ def drive(case: str, seed: int, att, rate: float | None, render: bool) -> dict:
         round(f.time, 6): [None if v.position is None else np.array(v.position) for v in f.views] for f in r.frames
     }
     inside = [e[2] for e in _frame_errors(r)]  # the drive's own figure, for the replay to reproduce
-    return {"scenario": sc, "att": att, "frames": frames, "truth": truth, "keypoints": not render, "inside": inside}
+    metrics = r.metrics()  # the drive's claims (closest approaches, goal), for --claims
+    metrics.pop("per_frame", None)
+    return {"scenario": sc, "att": att, "seed": seed, "frames": frames, "truth": truth, "keypoints": not render,
+            "inside": inside, "metrics": metrics}  # fmt: skip
 
 
 def replay(rec: dict, ablation: dict, localiser: dict | None = None) -> dict[int, list[tuple]]:
@@ -134,6 +139,41 @@ def replay(rec: dict, ablation: dict, localiser: dict | None = None) -> dict[int
     return out
 
 
+def people_classes(recs: list[dict], rows: dict) -> dict[str, list]:
+    """The replay's rows (keyed by run and pedestrian index) grouped by what the person does:
+    standing (velocity 0 in the scenario) or moving."""
+    sc = recs[0]["scenario"]
+    out: dict[str, list] = {}
+    for key in rows:
+        moving = any(sc.pedestrians[key[1]].velocity)
+        out.setdefault("moving people" if moving else "standers", []).append(key)
+    return out
+
+
+def claims(recs: list[dict]) -> None:
+    """The recorded (closed-loop) drives' own claims: per world, the closest approach to the
+    attentive and the distracted pedestrian (Case I: its two people; Case II: its two runs' one),
+    whether the distracted one was passed wider, and the runs with a true distance below R."""
+    worlds: dict[int, dict] = {}
+    below = 0
+    for rec in recs:
+        m = rec.get("metrics")
+        if m is None:
+            print("claims: a recording of an older --save without the drives' metrics")
+            return
+        below += m["margin_violations"] > 0
+        w = worlds.setdefault(rec["seed"], {})
+        for p in m["pedestrians"]:
+            key = "attentive" if (p["attentive"] if rec["att"] is None else rec["att"]) else "distracted"
+            w[key] = p["min_distance"]
+    pairs = [(w["attentive"], w["distracted"]) for w in worlds.values() if len(w) == 2]
+    wider = sum(d > a for a, d in pairs)
+    gaps = " ".join(f"{s}:{w['distracted'] - w['attentive']:+.2f}" for s, w in sorted(worlds.items()) if len(w) == 2)
+    closest = min(min(w.values()) for w in worlds.values())
+    print(f"claims (recorded drives): distracted passed wider in {wider} of {len(pairs)} worlds; runs below R "
+          f"{below} of {len(recs)}; closest {closest:.2f} m; gaps {gaps}")  # fmt: skip
+
+
 ABLATIONS = {
     "as is": {},
     "standing only": {"switch_rate": 0.0, "initial_standing": 1.0},
@@ -150,7 +190,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, help="camera frames per second (default: the scenario's)")
     ap.add_argument("--render", action="store_true", help="rendered frames on varied worlds (slow)")
     ap.add_argument("--save", type=Path, help="write the recorded drives to this file (pickle) for --load")
-    ap.add_argument("--load", type=Path, help="replay drives recorded by --save instead of driving")
+    ap.add_argument("--load", type=Path, nargs="+",
+                    help="replay drives recorded by --save (one or several files, pooled), not driving")  # fmt: skip
+    ap.add_argument(
+        "--ablations",
+        choices=("all", "none"),
+        default="all",
+        help="'none': replay only the sensing's configuration ('as is'; default all, see above)",
+    )
+    ap.add_argument(
+        "--claims",
+        action="store_true",
+        help="also print the recorded drives' own claims (closest approaches, distracted passed wider)",
+    )
     ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
                     help="replay with these LocaliserConfig / WorldTrackerConfig fields replaced")  # fmt: skip
     args = ap.parse_args(argv)
@@ -184,11 +236,13 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         ap.error(f"--case {args.case!r}: {exc}")
     if args.load is not None:
-        try:
-            with args.load.open("rb") as fh:
-                recs = pickle.load(fh)
-        except (OSError, pickle.UnpicklingError, EOFError) as exc:
-            ap.error(f"--load {str(args.load)!r}: not a recording of --save ({exc})")
+        recs = []
+        for path in args.load:
+            try:
+                with path.open("rb") as fh:
+                    recs += pickle.load(fh)
+            except (OSError, pickle.UnpicklingError, EOFError) as exc:
+                ap.error(f"--load {str(path)!r}: not a recording of --save ({exc})")
     else:
         recs = [
             drive(args.case, seed, att, args.rate, args.render)
@@ -198,10 +252,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.save is not None:
         with args.save.open("wb") as fh:
             pickle.dump(recs, fh)
+    if args.load is not None:  # what the recordings hold
+        seeds = sorted({rec.get("seed", -1) for rec in recs})
+        args.render = not all(rec["keypoints"] for rec in recs)
+        args.first_seed, args.seeds = seeds[0], len(seeds)
+        args.case = recs[0]["scenario"].name
     print(f"{args.case}, {'render' if args.render else 'keypoints'}, {args.rate or 'scenario'} frames/s, seeds "
-          f"{args.first_seed}-{args.first_seed + args.seeds - 1}; drives {time.perf_counter() - t0:.0f} s, "
+          f"{args.first_seed}-{args.first_seed + args.seeds - 1}"
+          + (f" ({args.seeds} recorded)" if args.load is not None else "")
+          + f"; drives {time.perf_counter() - t0:.0f} s, "
           f"load {os.getloadavg()[0]:.1f}" + (f"; replayed with {' '.join(args.set)}" if args.set else ""))  # fmt: skip
-    for name, ablation in ABLATIONS.items():
+    if args.claims:
+        claims(recs)
+    for name, ablation in ABLATIONS.items() if args.ablations == "all" else [("as is", {})]:
         rows: dict[tuple, list] = {}
         for rec in recs:
             for j, r in replay(rec, {**trk_set, **ablation}, loc_set).items():
@@ -212,11 +275,20 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{name}: track inside {every[:, 0].mean():.3f}, raw inside {every[:, 1].mean():.3f} ({len(every)} frames)"
         )
+        for label, keys in people_classes(recs, rows).items():
+            b = np.array([r for k in keys for r in rows[k]], dtype=float).reshape(-1, 7)
+            if len(b):
+                rms = np.sqrt(np.mean(b[:, 2:6] ** 2, axis=0))
+                core = np.quantile(np.abs(b[:, 2]), 0.9) / 1.645  # 1 where the track's along core is calibrated
+                print(f"  {label}: {len(b)} frames, track inside {b[:, 0].mean():.3f} "
+                      f"(along {rms[0]:.2f}, across {rms[1]:.2f}; along q90 {core:.2f}), raw inside "
+                      f"{b[:, 1].mean():.3f} (along {rms[2]:.2f}, across {rms[3]:.2f})")  # fmt: skip
         for key in sorted(rows):
             b = np.array(rows[key], dtype=float)
             rms = np.sqrt(np.mean(b[:, 2:6] ** 2, axis=0))
+            core = np.quantile(np.abs(b[:, 2]), 0.9) / 1.645
             print(f"  {key[0]}, pedestrian {key[1]}: {len(b)} frames, track inside {b[:, 0].mean():.3f} "
-                  f"(along {rms[0]:.2f}, across {rms[1]:.2f}), raw inside {b[:, 1].mean():.3f} "
+                  f"(along {rms[0]:.2f}, across {rms[1]:.2f}; along q90 {core:.2f}), raw inside {b[:, 1].mean():.3f} "
                   f"(along {rms[2]:.2f}, across {rms[3]:.2f}), "
                   f"walking probability median {np.median(b[:, 6]):.2f}")  # fmt: skip
     return 0

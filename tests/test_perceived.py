@@ -592,6 +592,7 @@ def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root, tmp_path,
     assert sum(line.startswith("as is: track inside") for line in out) == 2
     first, second = (i for i, line in enumerate(out) if line.startswith("as is: track inside"))
     assert out[first] == out[second]  # the replay of the loaded recording is the recorded drive's
+    frames = int(out[first].split("(")[-1].split()[0])
     # --set replays a candidate: a localiser field reaches the localiser (a wider body, wider regions)
     wide = region_breakdown.replay(rec, {}, {"body_sigma": 0.5})
     assert sum(r[1] for rs in wide.values() for r in rs) >= sum(r[1] for r in rows)
@@ -604,3 +605,55 @@ def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root, tmp_path,
     with pytest.raises(SystemExit):
         region_breakdown.main(["--load", str(tmp_path / "bad.pkl")])
     assert "--load" in capsys.readouterr().err
+    # several recordings pool (the same drive twice: twice its frames); --ablations none replays only
+    # the sensing's configuration; --claims prints the recorded drives' own claims
+    assert region_breakdown.main(["--load", str(path), str(path), "--ablations", "none", "--claims"]) == 0
+    out = capsys.readouterr().out.split("\n")
+    as_is = [line for line in out if line.startswith("as is: track inside")]
+    assert len(as_is) == 1 and f"({2 * frames} frames)" in as_is[0]
+    assert not any(line.startswith("standing only") for line in out)
+    claim = next(line for line in out if line.startswith("claims"))
+    assert "runs below R 0 of 4" in claim and ("in 0 of 1 worlds" in claim or "in 1 of 1 worlds" in claim)
+    with pytest.raises(SystemExit):
+        region_breakdown.main(["--load", str(path), "--ablations", "some"])
+    assert "--ablations" in capsys.readouterr().err
+
+
+def test_the_render_error_fit_recovers_a_known_correlation(repo_root, capsys):
+    """benchmarks/render_error_fit.py (issue 34 item 4, seventh pass) estimates how the rendered
+    placements' errors repeat from frame to frame: on series drawn with a known linear fade it must
+    give that fade back, and the tracker's inflation must match the measured one; a bad option or a
+    keypoint recording is one parser line naming it."""
+    import sys
+
+    sys.path.insert(0, str(repo_root / "benchmarks"))
+    try:
+        import render_error_fit as fit
+    finally:
+        sys.path.pop(0)
+    rng = np.random.default_rng(7)
+    shared, tau, dt = 0.6, 1.5, 0.1
+    lags = np.arange(0, 200) * dt
+    r = np.where(lags == 0, 1.0, shared * np.maximum(0.0, 1.0 - lags / tau))
+    cov = r[np.abs(np.subtract.outer(np.arange(200), np.arange(200)))]
+    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(200))
+    people = [{"t": lags.copy(), "along": chol @ rng.standard_normal(200), "across": rng.standard_normal(200)}
+              for _ in range(150)]  # fmt: skip
+    rows = [(lag, *fit.correlation(people, "along", lag)) for lag in fit.LAGS]
+    for lag, rho, n in rows:
+        assert n > 0 and abs(rho - shared * max(0.0, 1.0 - lag / tau)) < 0.08, (lag, rho)
+    assert abs(fit.correlation(people, "across", 0.1)[0]) < 0.05  # independent frames: none
+    s_fit, tau_fit = fit.fit_linear_fade(*zip(*rows, strict=True))
+    assert abs(s_fit - shared) < 0.06 and abs(tau_fit - tau) < 0.25
+    from trustnav.perception.world_tracking import correlated_error_factor
+
+    model = correlated_error_factor(dt, tau, shared)
+    measured = fit.measured_inflation(people, 1.0 / dt, 10.0)
+    assert abs(measured / model - 1.0) < 0.25, (measured, model)
+    for bad in (["--set", "foo=1"], ["--set", "body_sigma=x"], ["--set", "body_sigma=-1"]):
+        with pytest.raises(SystemExit):
+            fit.main(["nothing.pkl", *bad])
+        assert "--set" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        fit.main([str(repo_root / "README.md")])
+    assert "recording" in capsys.readouterr().err
