@@ -320,7 +320,10 @@ def main(argv: Sequence[str] | None = None) -> None:
             args.poses = args.record
     if not args.poses:
         parser.error("give --record FILE or --poses FILE")
-    data = pickle.loads(args.poses.read_bytes())
+    try:
+        data = pickle.loads(args.poses.read_bytes())
+    except (OSError, pickle.UnpicklingError, EOFError) as exc:
+        parser.error(f"--poses '{args.poses}': not a file of --record ({exc})")
     rows = {name: person_frames(d) for name, d in data.items() if not args.sets or name in args.sets}
     tuned = [n for n in rows if not data[n]["labels"].get("held_out")]
     held = [n for n in rows if data[n]["labels"].get("held_out")]

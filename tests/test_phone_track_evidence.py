@@ -93,3 +93,13 @@ def test_forward_filter_accumulates_evidence_and_forgets():
     # repeated looks at g = 0 on a track: the posterior falls below one look's
     outs = [f.add_pose(4, t / 10, kp, np.ones(17)).phone for t in range(5)]
     assert outs[0] == pytest.approx(flat(0.0)) and all(b < a for a, b in itertools.pairwise(outs))
+
+
+def test_a_missing_or_foreign_poses_file_is_one_error_naming_it(tmp_path, capsys):
+    foreign = tmp_path / "notes.txt"
+    foreign.write_text("# not a recording\n")
+    for path in (tmp_path / "missing.pkl", foreign):
+        with pytest.raises(SystemExit):
+            pte.main(["--poses", str(path)])
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert f"--poses '{path}': not a file of --record" in err
