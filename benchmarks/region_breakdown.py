@@ -174,6 +174,15 @@ def claims(recs: list[dict]) -> None:
           f"{below} of {len(recs)}; closest {closest:.2f} m; gaps {gaps}")  # fmt: skip
 
 
+def _inside(b: np.ndarray) -> str:
+    """Replay rows (inside track, inside raw, along / across of track and raw in sigmas, ...) as one
+    summary: frames, truth inside, rms errors and the track's along q90 (1 where its core is calibrated)."""
+    rms = np.sqrt(np.mean(b[:, 2:6] ** 2, axis=0))
+    core = np.quantile(np.abs(b[:, 2]), 0.9) / 1.645
+    track = f"track inside {b[:, 0].mean():.3f} (along {rms[0]:.2f}, across {rms[1]:.2f}; along q90 {core:.2f})"
+    return f"{len(b)} frames, {track}, raw inside {b[:, 1].mean():.3f} (along {rms[2]:.2f}, across {rms[3]:.2f})"
+
+
 ABLATIONS = {
     "as is": {},
     "standing only": {"switch_rate": 0.0, "initial_standing": 1.0},
@@ -278,19 +287,10 @@ def main(argv: list[str] | None = None) -> int:
         for label, keys in people_classes(recs, rows).items():
             b = np.array([r for k in keys for r in rows[k]], dtype=float).reshape(-1, 7)
             if len(b):
-                rms = np.sqrt(np.mean(b[:, 2:6] ** 2, axis=0))
-                core = np.quantile(np.abs(b[:, 2]), 0.9) / 1.645  # 1 where the track's along core is calibrated
-                print(f"  {label}: {len(b)} frames, track inside {b[:, 0].mean():.3f} "
-                      f"(along {rms[0]:.2f}, across {rms[1]:.2f}; along q90 {core:.2f}), raw inside "
-                      f"{b[:, 1].mean():.3f} (along {rms[2]:.2f}, across {rms[3]:.2f})")  # fmt: skip
+                print(f"  {label}: {_inside(b)}")
         for key in sorted(rows):
             b = np.array(rows[key], dtype=float)
-            rms = np.sqrt(np.mean(b[:, 2:6] ** 2, axis=0))
-            core = np.quantile(np.abs(b[:, 2]), 0.9) / 1.645
-            print(f"  {key[0]}, pedestrian {key[1]}: {len(b)} frames, track inside {b[:, 0].mean():.3f} "
-                  f"(along {rms[0]:.2f}, across {rms[1]:.2f}; along q90 {core:.2f}), raw inside {b[:, 1].mean():.3f} "
-                  f"(along {rms[2]:.2f}, across {rms[3]:.2f}), "
-                  f"walking probability median {np.median(b[:, 6]):.2f}")  # fmt: skip
+            print(f"  {key[0]}, pedestrian {key[1]}: {_inside(b)}, walking probability median {np.median(b[:, 6]):.2f}")
     return 0
 
 
