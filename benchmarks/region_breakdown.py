@@ -221,9 +221,10 @@ def main(argv: list[str] | None = None) -> int:
     for item in args.set:
         key, _, value = item.partition("=")
         try:
-            number = float(value)
+            flag = {"true": True, "false": False}
+            number = flag[value.lower()] if value.lower() in flag else float(value)
         except ValueError:
-            ap.error(f"--set {item!r}: expected KEY=NUMBER")
+            ap.error(f"--set {item!r}: expected KEY=NUMBER (or true / false)")
         if key in loc_fields:
             loc_set[key] = number
         elif key in trk_fields:

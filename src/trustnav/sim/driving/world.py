@@ -345,12 +345,15 @@ class SensingSpec:
 
     def localiser(self, keypoints: bool = False) -> LocaliserConfig:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
-        error model draws no per-person bias of the feet: ``foot_sigma`` 0; rendered frames through
-        the detector: the measured spread, ``LocaliserConfig.foot_sigma``)."""
+        error model draws no per-person bias of the feet and no pixel offset, and draws the pixels'
+        noise at the model's own scale: ``foot_sigma`` 0, ``pixel_bias`` False, ``noise_prior_dof``
+        inf; rendered frames through the detector: ``LocaliserConfig``'s measured defaults)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
-        return replace(cfg, foot_sigma=0.0) if keypoints else cfg
+        if keypoints:
+            return replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf)
+        return cfg
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
