@@ -26,6 +26,13 @@ Case II's slow walker in her walking pose and in her texting pose) it prints:
   error changes sign as the car approaches), which is what a track's average over seconds sees.
 
     python benchmarks/render_error_fit.py /tmp/rec/case-1_10_4*.pkl /tmp/rec/case-1_1_4*.pkl
+    python benchmarks/render_error_fit.py --body /tmp/rec/case-[12]_*_4*.pkl
+
+``--body`` fits the detector's body model instead (eighth pass): per body point, where the
+detector reports it at the truth's distance, as a share of the person's true stature, regressed on
+1 / (her image stature in pixels): reported height = share * H + offset pixels
+(``localisation.DETECTOR_PIXEL_BIAS``), with the spread left about either model; and the
+localiser's reduced chi^2 per pose (``LocaliserConfig.noise_prior_dof`` pools it).
 
 No model is changed: the figures are the estimate; ``region_breakdown.py --load ... --set`` replays
 a fitted candidate on evaluation worlds.
@@ -45,7 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig, pose_change
+from trustnav.perception.localisation import BODY_POINTS, GroundLocaliser, LocaliserConfig, pose_change
 from trustnav.perception.world_tracking import correlated_error_factor
 from trustnav.sim.driving.episode import street_of
 from trustnav.sim.driving.world import RENDER_ERROR_CORRELATION_S, RENDER_ERROR_SHARED, RENDER_POSE_CHANGE
@@ -91,6 +98,55 @@ def series(rec: dict, localiser: dict) -> list[dict]:
         out.append({**s, "t": np.array(s["t"]), "along": np.array(s["along"]), "across": np.array(s["across"]),
                     "kind": kind})  # fmt: skip
     return out
+
+
+def body_model(recs: list[dict]) -> None:
+    """Print each body point's reported height as share * H + offset pixels (least squares on 1 /
+    image stature), beside the share-only median, with the robust spread left about each; then the
+    localiser's reduced chi^2 per pose (quartiles)."""
+    rows, fits = [], {}
+    for rec in recs:
+        sc = rec["scenario"]
+        ground = street_of(sc).ground_height
+        loc = GroundLocaliser(sc.sensing.localiser(False))
+        for t, camera, people, index, to_world in rec["frames"]:
+            truth = rec["truth"].get(round(t, 6))
+            if truth is None or to_world is not None:
+                continue
+            for p, j in zip(people, index, strict=True):
+                if j is None or truth[j] is None:
+                    continue
+                xy = np.asarray(truth[j], dtype=float)
+                z0 = ground(xy)
+                stature = sc.pedestrians[j].appearance.height
+                _, depth = camera.project([[xy[0], xy[1], z0]])
+                pts = camera.back_project(p.keypoints, np.full(17, depth[0]))  # at the truth's distance
+                share = (pts[:, 2] - z0) / stature
+                share[p.confidences < 0.3] = np.nan
+                rows.append((camera.focal_px * stature / depth[0], share))
+                e = loc.locate(p, camera, ground)
+                if e is not None:
+                    fits.setdefault(sc.pedestrians[j].pose, []).append(e.fit)
+    if not rows:
+        print("no person-frames with truth in these recordings")
+        return
+    size = np.array([r[0] for r in rows])
+    shares = np.array([r[1] for r in rows])
+    print(f"{len(rows)} person-frames, image stature {size.min():.0f}-{size.max():.0f} px")
+    print("  body point   share-only median (robust sd)   share + offset px (robust sd)")
+    for name, joints, _, _ in BODY_POINTS:
+        y = np.concatenate([shares[:, j] for j in joints])
+        x = np.concatenate([size for _ in joints])
+        ok = np.isfinite(y)
+        a = np.column_stack([np.ones(ok.sum()), 1.0 / x[ok]])
+        coef = np.linalg.lstsq(a, y[ok], rcond=None)[0]
+        med = float(np.median(y[ok]))
+        spread = [1.4826 * float(np.median(np.abs(r - np.median(r)))) for r in (y[ok] - med, y[ok] - a @ coef)]
+        print(f"  {name:10s}   {med:.3f} ({spread[0]:.4f})                 {coef[0]:.3f} + {coef[1]:+.2f} px "
+              f"({spread[1]:.4f})")  # fmt: skip
+    for pose, v in sorted(fits.items()):
+        q = np.percentile(v, [25, 50, 75])
+        print(f"  reduced chi^2, {pose} pose: quartiles {q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f} ({len(v)} placements)")
 
 
 def correlation(people: list[dict], key: str, lag: float, tol: float = 0.02) -> tuple[float, int]:
@@ -167,6 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("recordings", nargs="+", type=Path, help="files written by region_breakdown.py --save")
     ap.add_argument("--set", nargs="+", default=[], metavar="KEY=NUMBER",
                     help="LocaliserConfig fields replaced before placing the people")  # fmt: skip
+    ap.add_argument("--body", action="store_true", help="fit the detector's body model (share + pixel offset)")
     args = ap.parse_args(argv)
     fields = {f.name for f in dataclasses.fields(LocaliserConfig)}
     loc: dict[str, float] = {}
@@ -183,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     except (TypeError, ValueError) as exc:
         ap.error(f"--set: {exc}")
     people: list[dict] = []
+    loaded: list[dict] = []
     for path in args.recordings:
         try:
             with path.open("rb") as fh:
@@ -191,8 +249,13 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"recording {str(path)!r}: not a file of region_breakdown.py --save ({exc})")
         if any(rec["keypoints"] for rec in recs):
             ap.error(f"recording {str(path)!r}: keypoint drives; this fit is of rendered frames (--render)")
-        for rec in recs:
-            people += series(rec, loc)
+        loaded += recs
+    if args.body:
+        print(f"{len(args.recordings)} recordings, load {os.getloadavg()[0]:.1f}")
+        body_model(loaded)
+        return 0
+    for rec in loaded:
+        people += series(rec, loc)
     print(f"{len(args.recordings)} recordings, {len(people)} person-drives, load {os.getloadavg()[0]:.1f}"
           + (f"; localiser with {' '.join(args.set)}" if args.set else ""))  # fmt: skip
     pose_scale = RENDER_POSE_CHANGE  # the render sensing's pose_change

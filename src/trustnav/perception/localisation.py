@@ -22,12 +22,19 @@ pixels for five unknowns:
   ankles 6-8 % of the height above the truth where the median is 4 %) and repeats in every frame
   of that person, so it is one unknown of the body, not noise of each joint.
 
+On rendered frames the detector's joints also sit a constant 0.2-1.8 px higher than a share of the
+stature says (:data:`DETECTOR_PIXEL_BIAS`, ``pixel_bias``): in shares of the height that is more
+for a far, small person than a near one, and without it people beyond 18 m were placed long and
+nearer ones short (issue 34 item 4, eighth pass).
+
 The fit's covariance (Gauss-Newton, (J' W J + priors)^-1) is the estimate's uncertainty: pixel
 noise (a share of the person's pixel height, plus a floor), the spread of the body ratios, the
-stature prior, the pitch and the feet. The pixels' noise grows by the fit's reduced chi^2 when
-above 1 (a body stretched or squashed, a walker's limbs off the centre line); the priors do not
-(before 26 Nov the whole covariance grew, the stature prior with it, and a walker's range region
-was too wide: issue 34). The position's marginal 2x2 block is returned in world coordinates.
+stature prior, the pitch and the feet. The pixels' noise is scaled by the fit's own reduced chi^2
+pooled with ``noise_prior_dof`` pseudo-residuals at the model's scale: narrowed for a body that
+fits the model closely (an upright stander), widened for one that does not (a body stretched or
+squashed, a walker's limbs off the centre line); the priors keep their width (before 26 Nov the
+whole covariance grew, the stature prior with it, and a walker's range region was too wide: issue
+34). The position's marginal 2x2 block is returned in world coordinates.
 Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
 """
 
