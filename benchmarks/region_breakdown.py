@@ -103,6 +103,12 @@ def drive(case: str, seed: int, att, rate: float | None, render: bool) -> dict:
             "inside": inside, "metrics": metrics}  # fmt: skip
 
 
+def set_value(text: str) -> float | bool:
+    """A ``--set`` value: true / false for a switch (``pixel_bias``), else a number (ValueError)."""
+    flag = {"true": True, "false": False}
+    return flag[text.lower()] if text.lower() in flag else float(text)
+
+
 def replay(rec: dict, ablation: dict, localiser: dict | None = None) -> dict[int, list[tuple]]:
     """Localiser and tracker over the recorded frames: per pedestrian index, per frame that updated
     its track, (track inside, raw inside, track along, track across, raw along, raw across, walking
@@ -221,8 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     for item in args.set:
         key, _, value = item.partition("=")
         try:
-            flag = {"true": True, "false": False}
-            number = flag[value.lower()] if value.lower() in flag else float(value)
+            number = set_value(value)
         except ValueError:
             ap.error(f"--set {item!r}: expected KEY=NUMBER (or true / false)")
         if key in loc_fields:

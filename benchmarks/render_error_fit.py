@@ -52,6 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from region_breakdown import set_value
 from trustnav.perception.localisation import BODY_POINTS, GroundLocaliser, LocaliserConfig, pose_change
 from trustnav.perception.world_tracking import correlated_error_factor
 from trustnav.sim.driving.episode import street_of
@@ -226,13 +227,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--body", action="store_true", help="fit the detector's body model (share + pixel offset)")
     args = ap.parse_args(argv)
     fields = {f.name for f in dataclasses.fields(LocaliserConfig)}
-    loc: dict[str, float] = {}
+    loc: dict[str, float | bool] = {}
     for item in args.set:
         key, _, value = item.partition("=")
         try:
-            loc[key] = float(value)
+            loc[key] = set_value(value)
         except ValueError:
-            ap.error(f"--set {item!r}: expected KEY=NUMBER")
+            ap.error(f"--set {item!r}: expected KEY=NUMBER (or true / false)")
         if key not in fields:
             ap.error(f"--set {item!r}: {key!r} is no field of LocaliserConfig")
     try:
