@@ -768,3 +768,25 @@ def test_the_render_error_fit_gives_back_the_detectors_body_model(repo_root, cap
         line = next(ln for ln in out.splitlines() if ln.strip().startswith(name))
         share, offset = float(line.split()[3]), float(line.split()[5])
         assert abs(share - DETECTOR_PIXEL_BIAS[name][0]) < 0.002 and abs(offset - DETECTOR_PIXEL_BIAS[name][1]) < 0.05
+
+
+def test_the_detectors_body_model_is_a_sensing_option_by_sensing_with_one_line_errors(tmp_path):
+    """[sensing] pixel_bias / noise_prior_dof (eighth pass): left out, they follow the sensing
+    (rendered frames: the detector's pixel offsets, the fit's chi^2 pooled with 4; keypoints: shares
+    only, only widened); given, they win for both; a bad value is one line naming the key."""
+    from trustnav.sim.driving.world import SensingSpec
+
+    render, keypoints = SensingSpec().localiser(), SensingSpec().localiser(keypoints=True)
+    assert (render.pixel_bias, render.noise_prior_dof) == (True, 4.0)
+    assert (keypoints.pixel_bias, keypoints.noise_prior_dof) == (False, math.inf)
+    case1 = (load_drive_scenario.__globals__["resources"].files("trustnav.sim") / "scenarios/case-1.toml").read_text()
+    assert case1.count("\n[sensing]\n") == 1
+    path = tmp_path / "camera.toml"
+    path.write_text(case1.replace("\n[sensing]\n", "\n[sensing]\npixel_bias = false\nnoise_prior_dof = inf\n"))
+    for keypoint_sensing in (False, True):
+        own = load_drive_scenario(path).sensing.localiser(keypoints=keypoint_sensing)
+        assert (own.pixel_bias, own.noise_prior_dof) == (False, math.inf)
+    for bad, key in (("pixel_bias = 1", "pixel_bias"), ("noise_prior_dof = -4", "noise_prior_dof")):
+        path.write_text(case1.replace("\n[sensing]\n", f"\n[sensing]\n{bad}\n"))
+        with pytest.raises(ValueError, match=f"{key} in \\[sensing\\]"):
+            load_drive_scenario(path)

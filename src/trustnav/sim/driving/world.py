@@ -35,6 +35,7 @@ from trustnav.perception.localisation import LocaliserConfig
 from trustnav.perception.world_tracking import WorldTrackerConfig
 from trustnav.schema import (
     Either,
+    Flag,
     InFile,
     Integer,
     Invalid,
@@ -286,7 +287,11 @@ class SensingSpec:
     (:mod:`trustnav.perception.localisation`, :mod:`~trustnav.perception.world_tracking`):
     ``stature`` and ``stature_sigma`` (m, the height prior), ``pitch_sigma_deg`` (how well the
     camera's pitch is known: the simulated car body does not pitch: 0.03 deg, the
-    detector's common vertical shift, by default),
+    detector's common vertical shift, by default), ``pixel_bias`` (the detector's constant pixel
+    offset of each joint, ``localisation.DETECTOR_PIXEL_BIAS``; by sensing: true for rendered
+    frames, false for keypoints, whose error model has none), ``noise_prior_dof`` (pseudo-residuals
+    the fit's chi^2 is pooled with to scale the pixels' noise; by sensing: 4 for rendered frames,
+    inf, only widened, for keypoints),
     ``accel_psd`` (m^2/s^3, the tracker's walking model), ``error_correlation_s`` (s over which a
     person's placement errors stay alike, fading linearly) and ``error_shared`` (their correlation
     between frames close together): frames closer together count as fewer placements, see
@@ -321,6 +326,12 @@ class SensingSpec:
     stature: float = 1.70
     stature_sigma: float = 0.09
     pitch_sigma_deg: float = 0.03
+    pixel_bias: Annotated[bool | None, Maybe(Flag(), "by sensing: true for rendered frames, false for keypoints")] = (
+        None
+    )
+    noise_prior_dof: Annotated[
+        float | None, Maybe(Number(0, finite=False), "by sensing: 4 for rendered frames, inf for keypoints")
+    ] = None
     accel_psd: float = 0.25
     error_correlation_s: Annotated[
         float | None, Maybe(Number(0, 60, unit=" s"), "by sensing: 2.2 s for rendered frames, 0.1 s for keypoints")
@@ -352,7 +363,11 @@ class SensingSpec:
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
         if keypoints:
-            return replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf)
+            cfg = replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf)
+        if self.pixel_bias is not None:
+            cfg = replace(cfg, pixel_bias=self.pixel_bias)
+        if self.noise_prior_dof is not None:
+            cfg = replace(cfg, noise_prior_dof=float(self.noise_prior_dof))
         return cfg
 
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
