@@ -76,7 +76,7 @@ BODY_POINTS: tuple[tuple[str, tuple[int, ...], float, float], ...] = (
 #: large image, pixels up): the reported height above the soles is ``share * H + offset`` pixels,
 #: so a far person's joints sit higher in shares of her height than a near one's. Fitted by least
 #: squares of the reported ratio on 1 / (image stature) over 2349 person-frames of rendered
-#: calibration worlds (54-488 px tall, three poses); it takes the spread left at the shoulders,
+#: calibration worlds (55-488 px tall, three poses); it takes the spread left at the shoulders,
 #: hips and knees from 0.009-0.013 to 0.007-0.010 of the stature, and removes the range bias the
 #: share-only ratios leave (people beyond 18 m placed 0.05-0.2 m long, nearer ones 0.1 m short).
 DETECTOR_PIXEL_BIAS: dict[str, tuple[float, float]] = {
@@ -338,9 +338,9 @@ class GroundLocaliser:
         pred, jac = self._model(camera, theta, ratio, n_u, g, foot)
         if pred is None:
             return None
-        # a body that does not fit the model (a detection stretched or squashed) is not believed
-        # more than its residuals allow: the pixels' noise grows by the reduced chi^2 when above 1;
-        # the priors (people's stature, the pitch, the feet) are not the pixels' and keep their width
+        # the body is believed as far as its own residuals allow: the pixels' noise is scaled by the
+        # reduced chi^2 pooled with the prior's pseudo-residuals (:meth:`_noise_scale`); the priors
+        # (people's stature, the pitch, the feet) are not the pixels' and keep their width
         fit = float(np.sum(base_w * (obs - pred) ** 2) / max(len(obs) - 4, 1))
         try:
             cov = np.linalg.inv(jac.T @ ((w / self._noise_scale(fit, len(obs) - 4))[:, None] * jac) + np.diag(prior_w))
