@@ -62,6 +62,18 @@ BATCH_SPANS = (1.0, 2.0, 3.0, 4.0)
 LAGS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
 
 
+def labelled_people(rec: dict):
+    """The recorded people a world pedestrian stands behind, frame by frame: (time, camera, person,
+    pedestrian index, her true ground position (x, y), the frame's map to the world or None)."""
+    for t, camera, people, index, to_world in rec["frames"]:
+        truth = rec["truth"].get(round(t, 6))
+        if truth is None:
+            continue
+        for p, j in zip(people, index, strict=True):
+            if j is not None and truth[j] is not None:
+                yield t, camera, p, j, np.asarray(truth[j], dtype=float), to_world
+
+
 def series(rec: dict, localiser: dict) -> list[dict]:
     """Per pedestrian of one recorded drive: times, whitened along / across errors of the raw
     placements, their poses and the person's class (standing, or moving in the run's pose)."""
@@ -69,28 +81,22 @@ def series(rec: dict, localiser: dict) -> list[dict]:
     loc = GroundLocaliser(dataclasses.replace(sc.sensing.localiser(rec["keypoints"]), **localiser))
     ground = street_of(sc).ground_height
     per: dict[int, dict] = {}
-    for t, camera, people, index, to_world in rec["frames"]:
-        truth = rec["truth"].get(round(t, 6))
-        if truth is None:
+    for t, camera, p, j, xy, to_world in labelled_people(rec):
+        e = loc.locate(p, camera, ground)
+        if e is None:
             continue
-        for p, j in zip(people, index, strict=True):
-            if j is None or truth[j] is None:
-                continue
-            e = loc.locate(p, camera, ground)
-            if e is None:
-                continue
-            if to_world is not None:
-                e = e.mapped(to_world)
-            u = truth[j] - camera.position[:2]
-            u = u / np.hypot(*u)
-            w = np.array([-u[1], u[0]])
-            d = e.position - truth[j]
-            s = per.setdefault(j, {"t": [], "along": [], "across": [], "shape": [], "truth": []})
-            s["t"].append(float(t))
-            s["along"].append(float(d @ u / math.sqrt(u @ e.covariance @ u)))
-            s["across"].append(float(d @ w / math.sqrt(w @ e.covariance @ w)))
-            s["shape"].append(e.shape)
-            s["truth"].append(np.array(truth[j], dtype=float))
+        if to_world is not None:
+            e = e.mapped(to_world)
+        u = xy - camera.position[:2]
+        u = u / np.hypot(*u)
+        w = np.array([-u[1], u[0]])
+        d = e.position - xy
+        s = per.setdefault(j, {"t": [], "along": [], "across": [], "shape": [], "truth": []})
+        s["t"].append(float(t))
+        s["along"].append(float(d @ u / math.sqrt(u @ e.covariance @ u)))
+        s["across"].append(float(d @ w / math.sqrt(w @ e.covariance @ w)))
+        s["shape"].append(e.shape)
+        s["truth"].append(xy)
     out = []
     for j, s in per.items():
         kind = f"standers, {sc.pedestrians[j].pose} pose"
@@ -110,24 +116,19 @@ def body_model(recs: list[dict]) -> None:
         sc = rec["scenario"]
         ground = street_of(sc).ground_height
         loc = GroundLocaliser(sc.sensing.localiser(False))
-        for t, camera, people, index, to_world in rec["frames"]:
-            truth = rec["truth"].get(round(t, 6))
-            if truth is None or to_world is not None:
+        for _, camera, p, j, xy, to_world in labelled_people(rec):
+            if to_world is not None:  # the truth is in the world's frame, the camera in another
                 continue
-            for p, j in zip(people, index, strict=True):
-                if j is None or truth[j] is None:
-                    continue
-                xy = np.asarray(truth[j], dtype=float)
-                z0 = ground(xy)
-                stature = sc.pedestrians[j].appearance.height
-                _, depth = camera.project([[xy[0], xy[1], z0]])
-                pts = camera.back_project(p.keypoints, np.full(17, depth[0]))  # at the truth's distance
-                share = (pts[:, 2] - z0) / stature
-                share[p.confidences < 0.3] = np.nan
-                rows.append((camera.focal_px * stature / depth[0], share))
-                e = loc.locate(p, camera, ground)
-                if e is not None:
-                    fits.setdefault(sc.pedestrians[j].pose, []).append(e.fit)
+            z0 = ground(xy)
+            stature = sc.pedestrians[j].appearance.height
+            _, depth = camera.project([[xy[0], xy[1], z0]])
+            pts = camera.back_project(p.keypoints, np.full(17, depth[0]))  # at the truth's distance
+            share = (pts[:, 2] - z0) / stature
+            share[p.confidences < 0.3] = np.nan
+            rows.append((camera.focal_px * stature / depth[0], share))
+            e = loc.locate(p, camera, ground)
+            if e is not None:
+                fits.setdefault(sc.pedestrians[j].pose, []).append(e.fit)
     if not rows:
         print("no person-frames with truth in these recordings")
         return
