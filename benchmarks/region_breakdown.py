@@ -49,7 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from perceived_drive import _frame_errors, varied
+from perceived_drive import _frame_errors, coverage_interval, varied
 from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig, chi2_90
 from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
 from trustnav.sim.driving import frame_path
@@ -281,14 +281,18 @@ def main(argv: list[str] | None = None) -> int:
         claims(recs)
     for name, ablation in ABLATIONS.items() if args.ablations == "all" else [("as is", {})]:
         rows: dict[tuple, list] = {}
+        worlds: dict[int, list] = {}  # the track's inside per frame, per seed (world)
         for rec in recs:
             for j, r in replay(rec, {**trk_set, **ablation}, loc_set).items():
                 rows.setdefault(
                     ("run " + {True: "attentive", False: "distracted", None: "both"}[rec["att"]], j), []
                 ).extend(r)
+                worlds.setdefault(rec.get("seed", -1), []).extend((0.0, 0.0, row[0]) for row in r)
         every = np.array([r for rs in rows.values() for r in rs], dtype=float).reshape(-1, 7)
+        ci = coverage_interval([{"errors": e} for e in worlds.values()]) if len(every) else [math.nan] * 2
         print(
-            f"{name}: track inside {every[:, 0].mean():.3f}, raw inside {every[:, 1].mean():.3f} ({len(every)} frames)"
+            f"{name}: track inside {every[:, 0].mean():.3f} (90 % interval over the {len(worlds)} worlds "
+            f"{ci[0]:.3f}-{ci[1]:.3f}), raw inside {every[:, 1].mean():.3f} ({len(every)} frames)"
         )
         for label, keys in people_classes(recs, rows).items():
             b = np.array([r for k in keys for r in rows[k]], dtype=float).reshape(-1, 7)

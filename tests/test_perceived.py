@@ -639,6 +639,35 @@ def test_varied_worlds_differ_by_seed_and_keep_their_people_where_they_stand(rep
         assert dict(p.alternative)["body_yaw_deg"] == pytest.approx(dict(q.alternative)["body_yaw_deg"] + turn)
 
 
+def test_the_coverage_interval_is_over_worlds_and_narrows_with_them(repo_root):
+    """perceived_drive.py's interval coverage carries a confidence interval over the seeds' worlds
+    (issue 34 item 4: a ten-world cell at 1 frame/s scores ~60 frames, so 0.98 and 0.96 may be one
+    frame apart): it holds the pooled figure, it is wide where one world decides, it narrows with
+    more worlds alike, it is the same for the same entries, and nothing scored is an error."""
+    import sys
+
+    sys.path.insert(0, str(repo_root / "benchmarks"))
+    try:
+        from perceived_drive import coverage_interval
+    finally:
+        sys.path.pop(0)
+
+    def world(inside: int, frames: int) -> dict:
+        return {"errors": [(10.0, 0.1, k < inside) for k in range(frames)]}
+
+    few = [world(6, 6)] * 9 + [world(0, 6)]  # one world all outside: pooled 0.9
+    lo, hi = coverage_interval(few)
+    assert lo < 0.9 < hi and hi - lo > 0.15
+    many = few * 10
+    lo2, hi2 = coverage_interval(many)
+    assert lo2 < 0.9 < hi2 and hi2 - lo2 < 0.5 * (hi - lo)
+    assert coverage_interval(few) == [lo, hi]
+    # frames alike in every world: no spread between worlds, so none in the interval
+    assert coverage_interval([world(9, 10)] * 10) == [0.9, 0.9]
+    with pytest.raises(ValueError, match="at least one scored frame"):
+        coverage_interval([{"errors": []}])
+
+
 def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root, tmp_path, capsys):
     """benchmarks/region_breakdown.py (issue 34 item 4) explains a drive's 90 % regions by replaying
     the localiser and the tracker on the frames it recorded: as is, the replay must give the drive's
