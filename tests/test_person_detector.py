@@ -288,6 +288,44 @@ def test_with_the_camera_known_heights_follow_the_feet_row():
     assert "camera" in rejected[0].reason and "horizon" in rejected[1].reason
 
 
+def test_proposals_under_the_detector_score_count_only_where_the_camera_vouches_for_them():
+    """MediaPipeConfig.proposal_score (issue 34): with the frame's camera known (a drive's), a box the
+    detector scores under ``detector_min_score`` is fitted if a person standing at its feet would fill
+    it; one whose size no person there has, or whose feet are cut off, is vetoed with its reason;
+    without a camera nothing under the score is fitted (a person on a billboard stands on no ground
+    the gate can check); a sure box passes either way."""
+    pytest.importorskip("mediapipe")
+    from trustnav.geometry.camera import CameraSpec
+    from trustnav.perception.mediapipe_backend import MediaPipeConfig, MediaPipePoseBackend
+
+    cam = CameraSpec(width=640, height=480, fov_deg=70.0, up=1.4).pose([0.0, 0.0], 0.0)
+    uv, _ = cam.project(np.array([[11.5, 0.0, 0.0], [11.5, 0.0, 1.7]]))
+    person = np.array([uv[0, 0] - 15, uv[1, 1], uv[0, 0] + 15, uv[0, 1]])
+    tall = person.copy()  # 3x a person's height at those feet: a pole, a poster
+    tall[1] = person[3] - 3 * (person[3] - person[1])
+    cut = np.array([400.0, 300.0, 440.0, 479.0])
+    sure = person + np.array([200.0, 0.0, 200.0, 0.0])
+    boxes = np.array([sure, person, tall, cut])
+    scores = np.array([0.6, 0.18, 0.18, 0.18])
+    with MediaPipePoseBackend(MediaPipeConfig(workers=1)) as backend:
+        assert backend.detector.min_score == pytest.approx(0.1)  # proposals are asked of the detector
+        kept, kept_scores, vetoed = backend._proposals(boxes, scores, 640, 480)
+        assert kept.tolist() == [sure.tolist()] and kept_scores.tolist() == [0.6] and vetoed == []
+        backend.camera = cam
+        kept, kept_scores, vetoed = backend._proposals(boxes, scores, 640, 480)
+        assert kept.tolist() == [sure.tolist(), person.tolist()] and kept_scores.tolist() == [0.6, 0.18]
+        assert len(vetoed) == 2 and "camera" in vetoed[0].reason and "bottom" in vetoed[1].reason
+    with MediaPipePoseBackend(MediaPipeConfig(workers=1, proposal_score=None)) as backend:
+        backend.camera = cam
+        assert backend.detector.min_score == pytest.approx(0.25)
+        assert backend._proposals(boxes[scores >= 0.25], scores[scores >= 0.25], 640, 480)[0].tolist() == [
+            sure.tolist()
+        ]
+    for bad in (0.0, 0.3, True, "0.1"):
+        with pytest.raises(ValueError, match="proposal_score must be None .* got"):
+            MediaPipeConfig(proposal_score=bad)
+
+
 # -- carried people in the pipeline ---------------------------------------------------------------
 
 

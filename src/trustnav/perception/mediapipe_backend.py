@@ -147,7 +147,15 @@ class MediaPipeConfig:
     the default places) and the score a box needs. region_scale: each box is fitted on a square of
     ``region_scale`` x its larger side. geometry_gate: the ground check of
     :mod:`~trustnav.perception.ground_gate`. duplicate_iou: two boxes overlapping by this much are one
-    person (:func:`one_box_per_person`).
+    person (:func:`one_box_per_person`). proposal_score: with the frame's camera known
+    (:attr:`MediaPipePoseBackend.camera`, a drive's), a box scoring at least this but under
+    ``detector_min_score`` is a proposal too: it is fitted only if a person of human height standing
+    where its feet are would fill it (the geometry gate with the camera, feet in view), and kept only
+    if the landmark model then confirms a person in it, as every box. The verifiers decide, not the
+    detector's score alone: YOLOX-Nano scored a texting woman in profile, 135 px tall and unoccluded,
+    0.17-0.21, and a car passed her at 2.37 m without once seeing her (issue 34; docs/perception.md,
+    "Proposals where the camera vouches"). None: no proposals; without a camera there are none
+    either (a person on a billboard stands on no ground the gate can check).
     """
 
     min_presence: float = 0.5
@@ -162,10 +170,20 @@ class MediaPipeConfig:
     detector_min_score: float = 0.25
     region_scale: float = 1.25
     geometry_gate: bool = True
+    proposal_score: float | None = 0.1
 
     def __post_init__(self) -> None:
         if not 0.0 < self.detector_min_score < 1.0:
             raise ValueError(f"detector_min_score must be in (0, 1), got {self.detector_min_score!r}")
+        if self.proposal_score is not None and (
+            isinstance(self.proposal_score, bool)
+            or not isinstance(self.proposal_score, (int, float))
+            or not 0.0 < self.proposal_score <= self.detector_min_score
+        ):
+            raise ValueError(
+                f"proposal_score must be None (no proposals) or in (0, detector_min_score = "
+                f"{self.detector_min_score:g}], got {self.proposal_score!r}"
+            )
         if not 0.8 <= self.region_scale <= 2.0:
             raise ValueError(
                 f"region_scale must be in [0.8, 2] (landmark region side / box height), got {self.region_scale!r}"
@@ -280,12 +298,15 @@ class MediaPipePoseBackend:
         self._frame_index = 0
         self.last_timing: dict[str, float] = {}
         # made now: a missing or bad model file fails here
-        self.detector = PersonDetector(self.config.detector_model, min_score=self.config.detector_min_score)
+        cfg = self.config
+        floor = cfg.detector_min_score if cfg.proposal_score is None else cfg.proposal_score
+        self.detector = PersonDetector(cfg.detector_model, min_score=floor)
         self.horizon = HorizonFit(GateConfig().window)
         #: what the latest frame's proposals came to: the geometry gate's rejections and the boxes the
         #: landmark model did not confirm (:class:`~trustnav.perception.ground_gate.Rejection`)
         self.last_rejections: list[Rejection] = []
-        #: a camera pose (trustnav.geometry CameraPose) for the geometry gate; None: fitted per frame
+        #: the frame's camera pose (trustnav.geometry CameraPose) for the geometry gate, and with it
+        #: the proposals (``MediaPipeConfig.proposal_score``); None: the gate fits the horizon per frame
         self.camera: Any = None
 
     def reset(self) -> None:
@@ -343,12 +364,13 @@ class MediaPipePoseBackend:
         h, w = frame.shape[:2]
         t0 = time.perf_counter()
         boxes, scores = self.detector(frame)
+        boxes, scores, vetoed = self._proposals(boxes, scores, w, h)
         t1 = time.perf_counter()
         followed = self._followed if self.video else []
         jobs = [(self._regions(box, followed), float(score), box) for box, score in zip(boxes, scores, strict=True)]
         results = self._map(lambda g, job: self._confirm(g, frame, *job, w, h, refit=True), jobs)
         t2 = time.perf_counter()
-        rejected = [
+        rejected = vetoed + [
             Rejection(tuple(map(float, box)), score, "the landmark model found no upright person in the box")
             for (_, score, box), res in zip(jobs, results, strict=True)
             if res is None
@@ -376,6 +398,33 @@ class MediaPipePoseBackend:
         self.last_rejections = rejected
         self.last_timing = {"detection": t1 - t0, "landmarks": t2 - t1}
         return people
+
+    def _proposals(
+        self, boxes: NDArray[np.float64], scores: NDArray[np.float64], w: int, h: int
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Rejection]]:
+        """The detector's boxes to fit: those scoring ``detector_min_score``, and with the camera known
+        the proposals under it (``proposal_score``) that the geometry gate vouches for (feet in view,
+        a person of human height standing there fills the box); the vetoed proposals' rejections."""
+        sure = scores >= self.config.detector_min_score
+        if sure.all():
+            return boxes, scores, []
+        if self.camera is None:
+            return boxes[sure], scores[sure], []
+        low = np.flatnonzero(~sure)
+        ok, vetoed = gate_boxes(boxes[low], scores[low], (w, h), camera=self.camera)
+        cut = h - 1 - GateConfig().bottom_margin  # feet cut off: nothing to vouch for them
+        keep = np.zeros(len(boxes), dtype=bool)
+        keep[sure] = True
+        for i in ok:
+            if boxes[low[i], 3] < cut:
+                keep[low[i]] = True
+            else:
+                vetoed.append(
+                    Rejection(
+                        tuple(map(float, boxes[low[i]])), float(scores[low[i]]), "a proposal cut by the frame's bottom"
+                    )
+                )
+        return boxes[keep], scores[keep], vetoed
 
     def _regions(self, box: NDArray[np.float64], followed: list[tuple[NDArray[np.float64], float]]) -> NDArray:
         """Landmark regions to try for a detector box: a followed person's region that lies on it

@@ -309,6 +309,9 @@ class RenderSensor:
         t0 = _time.perf_counter()
         frame = self.renderer.render(camera, list(bodies))
         t1 = _time.perf_counter()
+        backend = getattr(self.pipeline, "backend", None)
+        if hasattr(backend, "camera"):  # the car knows its camera: the geometry gate places feet with it
+            backend.camera = camera
         people = self.pipeline(frame, time=time) if self._timed and time is not None else self.pipeline(frame)
         # a person the real-time backend carried by its velocity was not measured on this frame: the
         # world tracker predicts it itself, and trust gets no evidence from it
