@@ -7,7 +7,8 @@ Runs Case I and Case II (attentive and distracted walker) over seeds in keypoint
 wider than the attentive one (runs out of all), runs with a true distance below R, goal reached, the
 median and p95 of the localisation error, the velocity error, the interval coverage (truth inside
 the 90 % region, with its 90 % confidence interval bootstrapped over the seeds' worlds) and identity
-switches.
+switches; render rows also the detection recall and the false positives (detections no world
+pedestrian explains).
 
     python benchmarks/perceived_drive.py                 # 20 seeds, keypoints, perceived (~1 min)
     python benchmarks/perceived_drive.py --seeds 5 --state true
@@ -245,6 +246,8 @@ def main(argv: list[str] | None = None) -> int:
             row = summarise(f"{name} render", entries, gap)
             recall = [m.get("detection_recall") for e in entries for m in e["runs"].values()]
             row["detection_recall"] = None if None in recall else round(float(np.mean(recall)), 3)
+            # detections that are nobody (a pole, a shadow): boxes the world's people do not explain
+            row["false_positives"] = int(sum(m.get("false_positives", 0) for e in entries for m in e["runs"].values()))
             rows.append(row)
     rate = f"{args.rate:g} frames/s" if args.rate else "the scenario's camera rate"
     print(f"state = {args.state}, {args.seeds} seeds, {rate}, {time.perf_counter() - t0:.0f} s")

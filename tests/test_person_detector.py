@@ -291,12 +291,14 @@ def test_with_the_camera_known_heights_follow_the_feet_row():
 def test_proposals_under_the_detector_score_count_only_where_the_camera_vouches_for_them():
     """MediaPipeConfig.proposal_score (issue 34): with the frame's camera known (a drive's), a box the
     detector scores under ``detector_min_score`` is fitted if a person standing at its feet would fill
-    it; one whose size no person there has, or whose feet are cut off, is vetoed with its reason;
+    it; one whose size no person there has, whose feet are cut off, or that lies mostly on a sure box
+    (a part of that person), is vetoed with its reason, and after the fit it must show its feet;
     without a camera nothing under the score is fitted (a person on a billboard stands on no ground
     the gate can check); a sure box passes either way."""
     pytest.importorskip("mediapipe")
     from trustnav.geometry.camera import CameraSpec
-    from trustnav.perception.mediapipe_backend import MediaPipeConfig, MediaPipePoseBackend
+    from trustnav.perception.mediapipe_backend import MediaPipeConfig, MediaPipePoseBackend, _feet_at_bottom
+    from trustnav.perception.types import Person
 
     cam = CameraSpec(width=640, height=480, fov_deg=70.0, up=1.4).pose([0.0, 0.0], 0.0)
     uv, _ = cam.project(np.array([[11.5, 0.0, 0.0], [11.5, 0.0, 1.7]]))
@@ -305,8 +307,10 @@ def test_proposals_under_the_detector_score_count_only_where_the_camera_vouches_
     tall[1] = person[3] - 3 * (person[3] - person[1])
     cut = np.array([400.0, 300.0, 440.0, 479.0])
     sure = person + np.array([200.0, 0.0, 200.0, 0.0])
-    boxes = np.array([sure, person, tall, cut])
-    scores = np.array([0.6, 0.18, 0.18, 0.18])
+    legs = sure.copy()  # the sure person's lower half, scored low: a part of them
+    legs[1] = 0.5 * (sure[1] + sure[3])
+    boxes = np.array([sure, person, tall, cut, legs])
+    scores = np.array([0.6, 0.18, 0.18, 0.18, 0.2])
     with MediaPipePoseBackend(MediaPipeConfig(workers=1)) as backend:
         assert backend.detector.min_score == pytest.approx(0.1)  # proposals are asked of the detector
         kept, kept_scores, vetoed = backend._proposals(boxes, scores, 640, 480)
@@ -314,7 +318,18 @@ def test_proposals_under_the_detector_score_count_only_where_the_camera_vouches_
         backend.camera = cam
         kept, kept_scores, vetoed = backend._proposals(boxes, scores, 640, 480)
         assert kept.tolist() == [sure.tolist(), person.tolist()] and kept_scores.tolist() == [0.6, 0.18]
-        assert len(vetoed) == 2 and "camera" in vetoed[0].reason and "bottom" in vetoed[1].reason
+        reasons = [v.reason for v in vetoed]
+        assert len(reasons) == 3 and "sure" in reasons[0] and "camera" in reasons[1] and "bottom" in reasons[2]
+    # after the fit a proposal must show its feet at its box's bottom (not a box ending at the waist)
+    kp = np.zeros((17, 2))
+    conf = np.zeros(17)
+    kp[15:17] = [[10.0, 95.0], [14.0, 96.0]]
+    conf[15:17] = [0.9, 0.3]
+    body = Person(bbox=np.array([0.0, 0.0, 30.0, 100.0]), score=0.6, keypoints=kp, confidences=conf)
+    assert _feet_at_bottom(body, body.bbox)
+    assert not _feet_at_bottom(body, np.array([0.0, -100.0, 30.0, 200.0]))  # ankles mid-box
+    conf[15] = 0.2  # no confident ankle
+    assert not _feet_at_bottom(body, body.bbox)
     with MediaPipePoseBackend(MediaPipeConfig(workers=1, proposal_score=None)) as backend:
         backend.camera = cam
         assert backend.detector.min_score == pytest.approx(0.25)
@@ -322,7 +337,7 @@ def test_proposals_under_the_detector_score_count_only_where_the_camera_vouches_
             sure.tolist()
         ]
     for bad in (0.0, 0.3, True, "0.1"):
-        with pytest.raises(ValueError, match="proposal_score must be None .* got"):
+        with pytest.raises(ValueError, match=r"proposal_score must be None .* got"):
             MediaPipeConfig(proposal_score=bad)
 
 

@@ -214,6 +214,33 @@ MIN_FIT_IOU = 0.3
 #: A confirmed person's score before the body's presence: this + the rest x the detection score.
 CONFIRMED_FLOOR = 0.5
 
+PART_OF_SURE = "a proposal lying mostly on a box the detector is sure of"
+
+
+def _share_inside(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """The share of box ``a``'s area inside box ``b``."""
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    area = max((a[2] - a[0]) * (a[3] - a[1]), 1e-9)
+    return float(iw * ih / area)
+
+
+#: Ankle confidence, and the share of a proposal's box above its ankle, that show its feet
+#: (:meth:`MediaPipePoseBackend._proposals`).
+FEET_CONFIDENCE = 0.5
+FEET_SHARE = 0.8
+
+
+def _feet_at_bottom(person: Person, box: NDArray[np.float64]) -> bool:
+    """Whether ``person``'s fit shows an ankle (COCO 15, 16) at ``box``'s bottom: confident and
+    below :data:`FEET_SHARE` of the box's height from its top."""
+    top, height = float(box[1]), float(box[3] - box[1])
+    return any(
+        person.confidences[j] >= FEET_CONFIDENCE and person.keypoints[j, 1] >= top + FEET_SHARE * height
+        for j in (15, 16)
+    )
+
+
 #: A landmark check: (33 landmarks, region used) -> the Person, or None if rejected.
 Accept = Callable[[NDArray[np.float64], NDArray[np.float64]], "Person | None"]
 
@@ -375,6 +402,15 @@ class MediaPipePoseBackend:
             for (_, score, box), res in zip(jobs, results, strict=True)
             if res is None
         ]
+        # a proposal is vouched for by where its feet stand: the fit must show them at the box's bottom
+        # (a box on a texter's upper body, its "feet" at her waist, is a person of that size further
+        # away to the gate)
+        low = self.config.detector_min_score
+        for k, ((_, score, box), res) in enumerate(zip(jobs, results, strict=True)):
+            if res is not None and score < low and not _feet_at_bottom(res[3], box):
+                reason = "a proposal whose fit shows no feet at the box's bottom"
+                rejected.append(Rejection(tuple(map(float, box)), score, reason))
+                results[k] = None
         kept = [(res, score) for res, (_, score, _) in zip(results, jobs, strict=True) if res is not None]
         people = [res[3] for res, _ in kept]
         # of two boxes on one person (a woman and her pram in one box, and she alone in another),
@@ -403,15 +439,24 @@ class MediaPipePoseBackend:
         self, boxes: NDArray[np.float64], scores: NDArray[np.float64], w: int, h: int
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], list[Rejection]]:
         """The detector's boxes to fit: those scoring ``detector_min_score``, and with the camera known
-        the proposals under it (``proposal_score``) that the geometry gate vouches for (feet in view,
-        a person of human height standing there fills the box); the vetoed proposals' rejections."""
+        the proposals under it (``proposal_score``) that lie mostly off the sure boxes (half or more
+        of one inside a sure box is a part of that person) and that the geometry gate vouches for
+        (feet in view, a person of human height standing there fills the box); the vetoed
+        proposals' rejections. After the landmark fit a proposal must also show its feet at its
+        box's bottom (:func:`_feet_at_bottom`)."""
         sure = scores >= self.config.detector_min_score
         if sure.all():
             return boxes, scores, []
         if self.camera is None:
             return boxes[sure], scores[sure], []
         low = np.flatnonzero(~sure)
-        ok, vetoed = gate_boxes(boxes[low], scores[low], (w, h), camera=self.camera)
+        vetoed: list[Rejection] = []
+        if sure.any():  # a proposal lying mostly on a sure box is a part of that person (legs, a torso)
+            on_sure = [i for i in low if max(_share_inside(boxes[i], b) for b in boxes[sure]) >= 0.5]
+            vetoed += [Rejection(tuple(map(float, boxes[i])), float(scores[i]), PART_OF_SURE) for i in on_sure]
+            low = np.array([i for i in low if i not in on_sure], dtype=int)
+        ok, gated = gate_boxes(boxes[low], scores[low], (w, h), camera=self.camera)
+        vetoed += gated
         cut = h - 1 - GateConfig().bottom_margin  # feet cut off: nothing to vouch for them
         keep = np.zeros(len(boxes), dtype=bool)
         keep[sure] = True
