@@ -412,6 +412,9 @@ class MediaPipePoseBackend:
                 rejected.append(Rejection(tuple(map(float, box)), score, reason))
                 results[k] = None
         kept = [(res, score) for res, (_, score, _) in zip(results, jobs, strict=True) if res is not None]
+        for res, score in kept:
+            if score < low:  # found as a proposal: marked for the reader (rejected.json, the drives' scoring)
+                res[3].extra["proposal"] = True
         people = [res[3] for res, _ in kept]
         # of two boxes on one person (a woman and her pram in one box, and she alone in another),
         # the one whose landmark fit fills it best is the person's
