@@ -217,14 +217,6 @@ CONFIRMED_FLOOR = 0.5
 PART_OF_SURE = "a proposal lying mostly on a box the detector is sure of"
 
 
-def _share_inside(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
-    """The share of box ``a``'s area inside box ``b``."""
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    area = max((a[2] - a[0]) * (a[3] - a[1]), 1e-9)
-    return float(iw * ih / area)
-
-
 #: Ankle confidence, and the share of a proposal's box above its ankle, that show its feet
 #: (:meth:`MediaPipePoseBackend._proposals`).
 FEET_CONFIDENCE = 0.5
@@ -405,15 +397,15 @@ class MediaPipePoseBackend:
         # a proposal is vouched for by where its feet stand: the fit must show them at the box's bottom
         # (a box on a texter's upper body, its "feet" at her waist, is a person of that size further
         # away to the gate)
-        low = self.config.detector_min_score
+        sure_score = self.config.detector_min_score
         for k, ((_, score, box), res) in enumerate(zip(jobs, results, strict=True)):
-            if res is not None and score < low and not _feet_at_bottom(res[3], box):
+            if res is not None and score < sure_score and not _feet_at_bottom(res[3], box):
                 reason = "a proposal whose fit shows no feet at the box's bottom"
                 rejected.append(Rejection(tuple(map(float, box)), score, reason))
                 results[k] = None
         kept = [(res, score) for res, (_, score, _) in zip(results, jobs, strict=True) if res is not None]
         for res, score in kept:
-            if score < low:  # found as a proposal: marked for the reader (rejected.json, the drives' scoring)
+            if score < sure_score:  # found as a proposal: marked for the reader (rejected.json, the drives' scoring)
                 res[3].extra["proposal"] = True
         people = [res[3] for res, _ in kept]
         # of two boxes on one person (a woman and her pram in one box, and she alone in another),
@@ -455,7 +447,7 @@ class MediaPipePoseBackend:
         low = np.flatnonzero(~sure)
         vetoed: list[Rejection] = []
         if sure.any():  # a proposal lying mostly on a sure box is a part of that person (legs, a torso)
-            on_sure = [i for i in low if max(_share_inside(boxes[i], b) for b in boxes[sure]) >= 0.5]
+            on_sure = [i for i in low if any(_contains(b, boxes[i], share=0.5, min_area=0.0) for b in boxes[sure])]
             vetoed += [Rejection(tuple(map(float, boxes[i])), float(scores[i]), PART_OF_SURE) for i in on_sure]
             low = np.array([i for i in low if i not in on_sure], dtype=int)
         ok, gated = gate_boxes(boxes[low], scores[low], (w, h), camera=self.camera)
