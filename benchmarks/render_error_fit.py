@@ -12,7 +12,9 @@ Case II's slow walker in her walking pose and in her texting pose) it prints:
   bias is part of what repeats), pooled over person-drives and over the recordings' frame rates;
 * the least-squares fit of the world tracker's model of it, ``shared * max(0, 1 - t / tau)``
   (``WorldTrackerConfig.error_shared`` / ``error_correlation_s``) to the standers' along-track
-  correlation at lags 0.1-4 s, weighted by the pairs behind each lag, and the ``error_shared``
+  correlation at lags 0.1-4 s, weighted by the pairs behind each lag, the same fit across the line
+  of sight (tau up to 60 s: a person's lateral placement repeats for the whole drive, whatever the
+  pose; the tracker has one setting for both axes, docs/perceived.md tenth pass), and the ``error_shared``
   that gives that correlation after the tracker's pose factor (``pose_change``; its mean over the
   standers' frame pairs one camera period apart, the lags the tracker folds in);
 * the variance inflation factor the tracker then uses (``correlated_error_factor``) at 1 and 10
@@ -173,7 +175,7 @@ def fit_linear_fade(lags, r, n) -> tuple[float, float]:
     lags, r, n = map(np.asarray, (lags, r, n))
     ok = np.isfinite(r) & (n > 0)
     best = (math.inf, 0.0, 0.0)
-    for tau in np.arange(0.2, 20.0001, 0.05):
+    for tau in np.concatenate([np.arange(0.2, 20.0, 0.05), np.arange(20.0, 60.0001, 0.5)]):
         basis = np.maximum(0.0, 1.0 - lags[ok] / tau)
         wts = n[ok]
         den = float(np.sum(wts * basis * basis))
@@ -280,6 +282,9 @@ def main(argv: list[str] | None = None) -> int:
         f10, f1 = pose_factor(group, 0.1, pose_scale), pose_factor(group, 1.0, pose_scale)
         print(f"  fit along: correlation {shared:.3f} * max(0, 1 - t / {tau:.2f} s); pose factor (pose_change "
               f"{pose_scale}) mean {f10:.3f} at 0.1 s, {f1:.3f} at 1 s")  # fmt: skip
+        across_rows = [(lag, *correlation(group, "across", lag)) for lag in LAGS]
+        shared_x, tau_x = fit_linear_fade(*zip(*across_rows, strict=True))
+        print(f"  fit across: correlation {shared_x:.3f} * max(0, 1 - t / {tau_x:.2f} s) (the pose not looked at)")
         for rate, span, f in ((10.0, 1.0, f10), (10.0, 2.0, f10), (1.0, 3.0, f1), (1.0, 5.0, f1)):
             es = min(1.0, shared / f) if f and math.isfinite(f) else shared
             model = correlated_error_factor(1.0 / rate, tau, shared)

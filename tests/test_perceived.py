@@ -753,6 +753,17 @@ def test_the_render_error_fit_recovers_a_known_correlation(repo_root, capsys):
     assert abs(fit.correlation(people, "across", 0.1)[0]) < 0.05  # independent frames: none
     s_fit, tau_fit = fit.fit_linear_fade(*zip(*rows, strict=True))
     assert abs(s_fit - shared) < 0.06 and abs(tau_fit - tau) < 0.25
+    # across the line of sight a placement repeats for the whole drive (tenth pass: 0.87 over 21 s):
+    # the fit reaches fades longer than 20 s
+    r_long = np.where(lags == 0, 1.0, 0.85 * np.maximum(0.0, 1.0 - lags / 30.0))
+    chol_long = np.linalg.cholesky(
+        r_long[np.abs(np.subtract.outer(np.arange(200), np.arange(200)))] + 1e-9 * np.eye(200)
+    )
+    steady = [{"t": lags.copy(), "across": chol_long @ rng.standard_normal(200)} for _ in range(150)]
+    s_long, tau_long = fit.fit_linear_fade(
+        *zip(*[(lag, *fit.correlation(steady, "across", lag)) for lag in fit.LAGS], strict=True)
+    )
+    assert abs(s_long - 0.85) < 0.1 and tau_long > 20.0, (s_long, tau_long)
     from trustnav.perception.world_tracking import correlated_error_factor
 
     model = correlated_error_factor(dt, tau, shared)
