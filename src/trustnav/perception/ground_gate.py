@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["HEIGHT_RANGE_M", "MIN_PEOPLE", "GateConfig", "HorizonFit", "Rejection", "gate_boxes"]
+__all__ = ["HEIGHT_RANGE_M", "MIN_PEOPLE", "GateConfig", "HorizonFit", "Rejection", "feet_in_view", "gate_boxes"]
 
 #: Heights of the people the gate lets stand (m): a child of ~6 years to a tall adult.
 HEIGHT_RANGE_M = (1.0, 2.1)
@@ -157,6 +157,12 @@ def _expected_heights(camera: Any, box: NDArray[np.float64]) -> tuple[float, flo
     return float(box[3] - uv[0, 1]), float(box[3] - uv[1, 1])
 
 
+def feet_in_view(box: Sequence[float] | NDArray[np.float64], height: int, config: GateConfig | None = None) -> bool:
+    """Whether ``box`` (x1, y1, x2, y2) stops above the frame's bottom edge (``height`` px) by more
+    than ``bottom_margin``: a box cut by the edge has no feet in view for the gate to judge."""
+    return float(box[3]) < height - 1 - (config or GateConfig()).bottom_margin
+
+
 def gate_boxes(
     boxes: Sequence[NDArray[np.float64]],
     scores: Sequence[float],
@@ -176,7 +182,7 @@ def gate_boxes(
     _, h = frame_size
     keep: list[int] = []
     rejected: list[Rejection] = []
-    judged = [i for i, b in enumerate(boxes) if b[3] < h - 1 - config.bottom_margin]
+    judged = [i for i, b in enumerate(boxes) if feet_in_view(b, h, config)]
     if camera is not None:
         for i, b in enumerate(boxes):
             if i not in judged:

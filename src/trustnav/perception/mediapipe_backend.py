@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from trustnav.perception.confidence import BLAZEPOSE_TO_COCO, occlusion_confidences
 from trustnav.perception.detector import PersonDetector
 from trustnav.perception.frames import quiet_stderr
-from trustnav.perception.ground_gate import GateConfig, HorizonFit, Rejection, gate_boxes
+from trustnav.perception.ground_gate import GateConfig, HorizonFit, Rejection, feet_in_view, gate_boxes
 from trustnav.perception.types import Person, box_iou, check_frame
 
 __all__ = [
@@ -213,9 +213,6 @@ RETRY_SCALES = (0.75,)
 MIN_FIT_IOU = 0.3
 #: A confirmed person's score before the body's presence: this + the rest x the detection score.
 CONFIRMED_FLOOR = 0.5
-
-PART_OF_SURE = "a proposal lying mostly on a box the detector is sure of"
-
 
 #: Ankle confidence, and the share of a proposal's box above its ankle, that show its feet
 #: (:meth:`MediaPipePoseBackend._proposals`).
@@ -448,15 +445,15 @@ class MediaPipePoseBackend:
         vetoed: list[Rejection] = []
         if sure.any():  # a proposal lying mostly on a sure box is a part of that person (legs, a torso)
             on_sure = [i for i in low if any(_contains(b, boxes[i], share=0.5, min_area=0.0) for b in boxes[sure])]
-            vetoed += [Rejection(tuple(map(float, boxes[i])), float(scores[i]), PART_OF_SURE) for i in on_sure]
+            reason = "a proposal lying mostly on a box the detector is sure of"
+            vetoed += [Rejection(tuple(map(float, boxes[i])), float(scores[i]), reason) for i in on_sure]
             low = np.array([i for i in low if i not in on_sure], dtype=int)
         ok, gated = gate_boxes(boxes[low], scores[low], (w, h), camera=self.camera)
         vetoed += gated
-        cut = h - 1 - GateConfig().bottom_margin  # feet cut off: nothing to vouch for them
         keep = np.zeros(len(boxes), dtype=bool)
         keep[sure] = True
-        for i in ok:
-            if boxes[low[i], 3] < cut:
+        for i in ok:  # the gate passes boxes cut by the frame's bottom unjudged: nothing vouches for their feet
+            if feet_in_view(boxes[low[i]], h):
                 keep[low[i]] = True
             else:
                 vetoed.append(
