@@ -6,13 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trustnav.perception.mediapipe_backend import MediaPipeConfig, one_box_per_person
+from trustnav.perception.mediapipe_backend import MediaPipeConfig, new_people_of_proposals, one_box_per_person
 from trustnav.perception.types import Person, box_iou
 
 
-def _person(box, nose, score=0.9, **extra) -> Person:
+def _person(box, nose, score=0.9, feet=None, **extra) -> Person:
     kp = np.full((17, 2), np.nan)
     kp[0] = nose
+    if feet is not None:
+        kp[15] = kp[16] = feet
     return Person(bbox=np.array(box, float), keypoints=kp, confidences=np.ones(17), score=score, extra=extra)
 
 
@@ -28,6 +30,29 @@ def test_one_box_per_person_keeps_a_far_person_seen_inside_a_near_ones_box():
     far = _person([150, 150, 175, 230], nose=(162, 155))  # inside the box, another head
     side = _person([190, 100, 290, 400], nose=(240, 120))  # next to it, overlapping a little
     assert one_box_per_person([near, far, side], 0.45) == [0, 1, 2]
+
+
+def test_a_proposal_whose_fit_is_a_kept_person_adds_nobody():
+    # rendered Case I world 8 at 10 frames/s: a proposal box shifted off the stander (0.44 of it on
+    # her box) took the landmark region followed from her last frame and fitted her again
+    her = _person([757, 351, 773, 415], nose=(766, 356), feet=(766, 411))
+    shifted = _person([762, 350, 787, 412], nose=(767, 356), feet=(766, 411), proposal=True)
+    other = _person([493, 355, 509, 414], nose=(506, 360), feet=(501, 401))
+    assert new_people_of_proposals([her, shifted, other]) == [0, 2]
+    # Case II world 6: a whole-body proposal on the texter whose upper body a sure box holds (same head)
+    upper = _person([476, 353, 501, 413], nose=(492, 360), feet=(482, 409))
+    whole = _person([470, 354, 495, 441], nose=(493, 362), feet=(482, 434), proposal=True)
+    assert new_people_of_proposals([upper, whole]) == [0]
+    # the texter the detector is unsure of, beside a stander: her own head and feet (a head's width
+    # between the heads), kept; a sure box is never dropped this way, nor a proposal for a proposal
+    beside = _person([770, 352, 790, 414], nose=(780, 357), feet=(780, 410), proposal=True)
+    assert new_people_of_proposals([her, beside]) == [0, 1]
+    twin = _person([757, 351, 773, 415], nose=(766, 356), feet=(766, 411))
+    assert new_people_of_proposals([her, twin]) == [0, 1]
+    assert new_people_of_proposals([shifted, beside]) == [0, 1]
+    # two proposals with one fit: the better kept
+    again = _person([760, 350, 780, 414], nose=(766, 357), feet=(766, 411), score=0.95, proposal=True)
+    assert new_people_of_proposals([shifted, again]) == [1]
 
 
 def test_config_refuses_bad_box_margins():

@@ -218,15 +218,19 @@ CONFIRMED_FLOOR = 0.5
 #: (:meth:`MediaPipePoseBackend._proposals`).
 FEET_CONFIDENCE = 0.5
 FEET_SHARE = 0.8
+#: The ankles among the 17 COCO keypoints.
+ANKLES = (15, 16)
+#: A proposal whose fit puts the nose, or the ankles' midpoint, within this share of the smaller
+#: box's height of a kept person's is that person (:func:`same_fit`).
+SAME_SPOT = 0.1
 
 
 def _feet_at_bottom(person: Person, box: NDArray[np.float64]) -> bool:
-    """Whether ``person``'s fit shows an ankle (COCO 15, 16) at ``box``'s bottom: confident and
+    """Whether ``person``'s fit shows an ankle (:data:`ANKLES`) at ``box``'s bottom: confident and
     below :data:`FEET_SHARE` of the box's height from its top."""
     top, height = float(box[1]), float(box[3] - box[1])
     return any(
-        person.confidences[j] >= FEET_CONFIDENCE and person.keypoints[j, 1] >= top + FEET_SHARE * height
-        for j in (15, 16)
+        person.confidences[j] >= FEET_CONFIDENCE and person.keypoints[j, 1] >= top + FEET_SHARE * height for j in ANKLES
     )
 
 
@@ -408,6 +412,16 @@ class MediaPipePoseBackend:
         # of two boxes on one person (a woman and her pram in one box, and she alone in another),
         # the one whose landmark fit fills it best is the person's
         keep = one_box_per_person([replace(p, score=p.extra["fit_iou"]) for p in people], self.config.duplicate_iou)
+        people, kept = [people[i] for i in keep], [kept[i] for i in keep]
+        # a proposal adds a person only where nobody kept has her fit: a box shifted off a person (0.4-0.5
+        # of it on her box) takes the region followed from her last frame and fits her again
+        keep = new_people_of_proposals(people)
+        reason = "a proposal whose fit is a person kept"
+        rejected += [
+            Rejection(tuple(map(float, p.bbox)), k[1], reason)
+            for i, (p, k) in enumerate(zip(people, kept, strict=True))
+            if i not in keep
+        ]
         people, kept = [people[i] for i in keep], [kept[i] for i in keep]
         if self.config.geometry_gate:
             ok, gated = gate_boxes(
@@ -644,6 +658,31 @@ def _share_head(a: Person, b: Person) -> bool:
     if not (np.isfinite(nose_a).all() and np.isfinite(nose_b).all()):
         return False
     return math.hypot(*(nose_a - nose_b)) < 0.25 * _height(small.bbox)
+
+
+def same_fit(a: Person, b: Person) -> bool:
+    """Two people whose fits put the nose, or the ankles' midpoint, within :data:`SAME_SPOT` of the
+    smaller box's height of each other: one body fitted twice (a head is about an eighth of a body's
+    height wide). Only for a proposal: in a real group the landmark model also fits a neighbour's
+    body on a second person's box, which the detector's sure box still vouches for."""
+    size = min(_height(a.bbox), _height(b.bbox))
+    feet_a, feet_b = a.keypoints[list(ANKLES)].mean(axis=0), b.keypoints[list(ANKLES)].mean(axis=0)
+    return _within(a.keypoints[0], b.keypoints[0], SAME_SPOT * size) or _within(feet_a, feet_b, SAME_SPOT * size)
+
+
+def new_people_of_proposals(people: list[Person]) -> list[int]:
+    """Indices of the people to keep (sorted): every one the detector is sure of, and each proposal
+    (``extra["proposal"]``, best score first) whose fit is nobody's kept before it (:func:`same_fit`)."""
+    keep = [i for i, p in enumerate(people) if not p.extra.get("proposal")]
+    for i in sorted(set(range(len(people))) - set(keep), key=lambda i: -people[i].score):
+        if not any(same_fit(people[i], people[j]) for j in keep):
+            keep.append(i)
+    return sorted(keep)
+
+
+def _within(p: NDArray[np.float64], q: NDArray[np.float64], distance: float) -> bool:
+    """Two image points, both known, closer than ``distance``."""
+    return bool(np.isfinite(p).all() and np.isfinite(q).all() and math.hypot(*(p - q)) < distance)
 
 
 def _contains(outer: NDArray, inner: NDArray, share: float = 0.85, min_area: float = 0.3) -> bool:
