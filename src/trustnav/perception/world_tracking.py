@@ -71,9 +71,10 @@ class WorldTrackerConfig:
     detector bias frame after frame; error_shared: the errors' correlation between frames close
     together (the share of their variance that repeats); their correlation fades linearly to 0 at
     error_correlation_s, and a frame that follows the track's previous one by dt < error_correlation_s
-    is folded in with its covariance times the variance inflation factor of such errors
-    (:func:`correlated_error_factor`; 1 s and 1: the frames of one second count as one independent
-    placement); error_correlation_s or error_shared 0: every frame independent. pose_change: the
+    is folded in with its variance along the line of sight times the variance inflation factor of
+    such errors (:func:`correlated_error_factor`, :func:`inflated_along`; 1 s and 1: the frames of
+    one second count as one independent range); error_correlation_s or error_shared 0: every frame
+    independent. pose_change: the
     errors repeat only while the pose does (the detector's bias is that of the image it sees): a
     frame whose limbs moved by d (:func:`~trustnav.perception.localisation.pose_change`, shares of
     the body's height) since the track's previous one shares exp(-(d / pose_change)^2 / 2) of
@@ -259,7 +260,8 @@ def correlated_error_factor(dt: float, correlation_s: float, shared: float = 1.0
     the repetition fades out over ``correlation_s``: the same pose seen from a place that slowly
     changes). Fusing a run of such frames as if independent would shrink the covariance by the
     variance inflation factor 1 + 2 sum_k r(k dt) too much, so each frame is folded in with its
-    covariance times that factor (the usual inflation for correlated measurements; with
+    variance along the line of sight times that factor (:func:`inflated_along`; the usual
+    inflation for correlated measurements; with
     ``shared`` = 1 about ``correlation_s / dt``: the frames of one span count as one placement).
     The track's covariance after a span of frames is then about the same at any frame rate.
     1 (no change) from ``dt >= correlation_s`` on, and for a first frame or a track found again
@@ -268,6 +270,18 @@ def correlated_error_factor(dt: float, correlation_s: float, shared: float = 1.0
         return 1.0
     k = math.ceil(correlation_s / dt - 1e-9) - 1  # lags k dt < correlation_s
     return 1.0 + 2.0 * shared * (k - dt / correlation_s * k * (k + 1) / 2.0)
+
+
+def inflated_along(covariance: NDArray[np.float64], factor: float) -> NDArray[np.float64]:
+    """A placement's 2 x 2 ``covariance`` with its variance along the line of sight (its major
+    axis: monocular range) times ``factor`` and its variance across unchanged. Along the line of
+    sight the errors fade within seconds, as :func:`correlated_error_factor` models; across it a
+    person's placement repeats for the whole drive (rendered frames: 0.87 over 21 s), an error no
+    per-frame factor describes: inflating it too made the region across 2-3 times the error, while
+    the track's own motion noise already keeps its memory, and its region across, about one
+    placement's (docs/perceived.md, eleventh pass)."""
+    lam, u = np.linalg.eigh(covariance)
+    return covariance + (factor - 1.0) * max(float(lam[1]), 0.0) * np.outer(u[:, 1], u[:, 1])
 
 
 def _shared(t: WorldTrack, e: GroundEstimate, cfg: WorldTrackerConfig) -> float:
@@ -380,8 +394,8 @@ class WorldTracker:
                 elif dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
                 alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, _shared(t, e, cfg))
-                if alike > 1.0:  # a frame soon after the last: its error is mostly that frame's again
-                    e = replace(e, covariance=e.covariance * alike)
+                if alike > 1.0:  # a frame soon after the last: its range error is mostly that frame's again
+                    e = replace(e, covariance=inflated_along(e.covariance, alike))
                 self._correct(t, e)
                 t.hits += 1
                 t.last_seen = float(time)
