@@ -248,7 +248,8 @@ MAX_PERCEPTION_LATENCY = 5.0
 # how a person's placement errors repeat from frame to frame (docs/perceived.md, "Calibration"):
 # rendered frames through the detector repeat its bias for one pose and viewpoint; measured on Case I
 # seeds 100-101 at 10 frames/s, the raw placements' whitened errors correlate by 0.66-0.71 0.1 s
-# apart, falling about linearly to 0 at 2.2 s (correlation s and shared share below). Keypoint
+# apart, falling about linearly to 0 at 2.2 s (correlation s and shared share below; the tracker
+# inflates the variance along the line of sight by it, WorldTrackerConfig). Keypoint
 # sensing draws its joints' errors anew in each frame (correlation 0.1-0.2 at 0.1-1 s, from the
 # stature and the constant detector bias; its 90 % region holds the truth in 0.92-0.95 of the
 # frames at 10 frames/s without inflation, so none: 0.1 s, one frame at 10 frames/s)
