@@ -151,7 +151,8 @@ class MediaPipeConfig:
     (:attr:`MediaPipePoseBackend.camera`, a drive's), a box scoring at least this but under
     ``detector_min_score`` is a proposal too: it is fitted only if a person of human height standing
     where its feet are would fill it (the geometry gate with the camera, feet in view), and kept only
-    if the landmark model then confirms a person in it, as every box. The verifiers decide, not the
+    if the landmark model then confirms a person in it, as every box, whom nobody kept has already
+    (:func:`new_people_of_proposals`). The verifiers decide, not the
     detector's score alone: YOLOX-Nano scored a texting woman in profile, 135 px tall and unoccluded,
     0.17-0.21, and a car passed her at 2.37 m without once seeing her (issue 34; docs/perception.md,
     "Proposals where the camera vouches"). None: no proposals; without a camera there are none
@@ -449,7 +450,7 @@ class MediaPipePoseBackend:
         of one inside a sure box is a part of that person) and that the geometry gate vouches for
         (feet in view, a person of human height standing there fills the box); the vetoed
         proposals' rejections. After the landmark fit a proposal must also show its feet at its
-        box's bottom (:func:`_feet_at_bottom`)."""
+        box's bottom (:func:`_feet_at_bottom`) and be nobody kept (:func:`new_people_of_proposals`)."""
         sure = scores >= self.config.detector_min_score
         if sure.all():
             return boxes, scores, []
