@@ -14,9 +14,10 @@ Case II's slow walker in her walking pose and in her texting pose) it prints:
   (``WorldTrackerConfig.error_shared`` / ``error_correlation_s``) to the standers' along-track
   correlation at lags 0.1-4 s, weighted by the pairs behind each lag, the same fit across the line
   of sight (tau up to 60 s: a person's lateral placement repeats for the whole drive, whatever the
-  pose; the tracker has one setting for both axes, docs/perceived.md tenth pass), and the ``error_shared``
-  that gives that correlation after the tracker's pose factor (``pose_change``; its mean over the
-  standers' frame pairs one camera period apart, the lags the tracker folds in);
+  pose, so the tracker inflates only the variance along it: docs/perceived.md, tenth and eleventh
+  passes), and the ``error_shared`` that gives that correlation after the tracker's pose factor
+  (``pose_change``; its mean over the standers' frame pairs one camera period apart, the lags the
+  tracker folds in);
 * the variance inflation factor the tracker then uses (``correlated_error_factor``) at 1 and 10
   frames/s beside the one measured directly: n var(mean of n frames) / var(frame) over spans of
   the drives (batch means);

@@ -653,12 +653,9 @@ def _height(box: NDArray) -> float:
 
 def _share_head(a: Person, b: Person) -> bool:
     small, large = (a, b) if _height(a.bbox) <= _height(b.bbox) else (b, a)
-    if not _contains(large.bbox, small.bbox, min_area=0.0):
-        return False
-    nose_a, nose_b = a.keypoints[0], b.keypoints[0]
-    if not (np.isfinite(nose_a).all() and np.isfinite(nose_b).all()):
-        return False
-    return math.hypot(*(nose_a - nose_b)) < 0.25 * _height(small.bbox)
+    return _contains(large.bbox, small.bbox, min_area=0.0) and _within(
+        a.keypoints[0], b.keypoints[0], 0.25 * _height(small.bbox)
+    )
 
 
 def same_fit(a: Person, b: Person) -> bool:
@@ -675,7 +672,8 @@ def new_people_of_proposals(people: list[Person]) -> list[int]:
     """Indices of the people to keep (sorted): every one the detector is sure of, and each proposal
     (``extra["proposal"]``, best score first) whose fit is nobody's kept before it (:func:`same_fit`)."""
     keep = [i for i, p in enumerate(people) if not p.extra.get("proposal")]
-    for i in sorted(set(range(len(people))) - set(keep), key=lambda i: -people[i].score):
+    proposals = [i for i, p in enumerate(people) if p.extra.get("proposal")]
+    for i in sorted(proposals, key=lambda i: -people[i].score):
         if not any(same_fit(people[i], people[j]) for j in keep):
             keep.append(i)
     return sorted(keep)

@@ -74,12 +74,12 @@ class WorldTrackerConfig:
     is folded in with its variance along the line of sight times the variance inflation factor of
     such errors (:func:`correlated_error_factor`, :func:`inflated_along`; 1 s and 1: the frames of
     one second count as one independent range); error_correlation_s or error_shared 0: every frame
-    independent. pose_change: the
-    errors repeat only while the pose does (the detector's bias is that of the image it sees): a
-    frame whose limbs moved by d (:func:`~trustnav.perception.localisation.pose_change`, shares of
-    the body's height) since the track's previous one shares exp(-(d / pose_change)^2 / 2) of
-    error_shared (a walker's stride renews the errors, a standing person's sway does not); 0: the
-    pose is not looked at. out_of_view_max_sigma: the
+    independent. pose_change: the errors repeat only while the pose does (the detector's bias is
+    that of the image it sees): a frame whose limbs moved by d
+    (:func:`~trustnav.perception.localisation.pose_change`, shares of the body's height) since the
+    track's previous one shares exp(-(d / pose_change)^2 / 2) of error_shared (a walker's stride
+    renews the errors, a standing person's sway does not); 0: the pose is not looked at.
+    out_of_view_max_sigma: the
     position sigma (m) beyond which a track beside or behind the camera's horizontal view, walking
     away from its axis, is dropped (one cut off in front of the camera, or walking toward the car's
     path, is kept: the car may drive into them): where the camera
