@@ -104,7 +104,8 @@ def drive(case: str, seed: int, att, rate: float | None, render: bool) -> dict:
 
 
 def set_value(text: str) -> float | bool:
-    """A ``--set`` value: true / false for a switch (``pixel_bias``), else a number (ValueError)."""
+    """A ``--set`` value: true / false for a switch (``pixel_bias``, ``separate_scales``), else a number
+    (ValueError)."""
     flag = {"true": True, "false": False}
     return flag[text.lower()] if text.lower() in flag else float(text)
 

@@ -69,15 +69,8 @@ def test_rays_above_the_horizon_meet_no_ground_and_k_matrix_round_trips():
 
 
 #: The localiser's model of the keypoint sensor's people (no pixel offset of the detector, the pixels'
-#: noise drawn at the model's scale, its centre line's wander, one chi^2 for all pixels):
-#: ``SensingSpec.localiser(keypoints=True)``.
-KEYPOINT_MODEL = {
-    "pixel_bias": False,
-    "noise_prior_dof": math.inf,
-    "lateral_sigma": 0.02,
-    "body_sigma": 0.01,
-    "separate_scales": False,
-}
+#: noise drawn at the model's scale): ``SensingSpec.localiser(keypoints=True)``.
+KEYPOINT_MODEL = {"pixel_bias": False, "noise_prior_dof": math.inf}
 
 
 def _person_at(sc, camera, index, seed=0, **sensing):
@@ -247,8 +240,7 @@ def test_a_body_that_fits_better_than_the_model_is_believed_more_by_its_own_resi
     n = None
     var = {}
     for nu in (0.0, 4.0, math.inf):
-        model = {**KEYPOINT_MODEL, "noise_prior_dof": nu}
-        loc = GroundLocaliser(LocaliserConfig(**model, pitch_sigma_deg=0.5))
+        loc = GroundLocaliser(LocaliserConfig(pixel_bias=False, noise_prior_dof=nu, pitch_sigma_deg=0.5))
         for name, body in (("still", person), ("stride", stride)):
             est = loc.locate(body, cam)
             n = (est.position - cam.position[:2]) / est.distance if n is None else n
@@ -265,10 +257,8 @@ def test_the_centre_line_and_the_joints_heights_are_each_believed_by_their_own_r
     """Twelfth pass (issue 34 item 4): the u's of the centre line give the bearing, the joints' v's
     the range; with ``separate_scales`` each group's noise is scaled by its own reduced chi^2, so a
     stride off the centre line widens the region across the line of sight, not along it, and joints
-    out of the body's proportions widen the range, not the bearing. One chi^2 for all pixels
-    (keypoint sensing's model) widens both for a stride: on rendered frames an upright stander's bearing was
-    twice as wide as her errors (raw across rms 0.55) and lowering the centre line's noise alone
-    widened every walker's range. The pitch is known well here, so the pixels decide the range."""
+    out of the body's proportions widen the range, not the bearing. One chi^2 for all pixels (the
+    default) widens both for a stride. The pitch is known well here, so the pixels decide the range."""
     sc = load_drive_scenario("case-2")
     cam = sc.camera.pose([34.5, 120.0], -math.pi / 2)
     person = _person_at(sc, cam, 0, detector_bias=False, pixel_noise=0.0, dropout=0.0)

@@ -34,10 +34,10 @@ pooled with ``noise_prior_dof`` pseudo-residuals at the model's scale: narrowed 
 fits the model closely (an upright stander), widened for one that does not (a body stretched or
 squashed, a walker's limbs off the centre line); the priors keep their width (before 26 Nov the
 whole covariance grew, the stature prior with it, and a walker's range region was too wide: issue
-34). With ``separate_scales`` the centre line's u's (the bearing) and the joints' v's (the range)
-are two variance components, each scaled by its own chi^2: a stride off the centre line widens
-the region across the line of sight, not the range (issue 34 item 4, twelfth pass). The position's
-marginal 2x2 block is returned in world coordinates.
+34). With ``separate_scales`` (off by default) the centre line's u's (the bearing) and the
+joints' v's (the range) are two variance components, each scaled by its own chi^2: a stride off the
+centre line widens the region across the line of sight, not the range (issue 34 item 4, twelfth
+pass). The position's marginal 2x2 block is returned in world coordinates.
 Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
 """
 
@@ -103,10 +103,9 @@ class LocaliserConfig:
     pitch_sigma_deg: how well the camera's pitch is known (deg; 0 = exactly, a car that brakes
     pitches by 1-2 deg); pixel_sigma: keypoint noise as a share of the person's pixel height,
     pixel_floor: its floor (px); lateral_sigma: how far the centre line wanders sideways (share of
-    the stature; the detector's u's about the body's axis: 0.010-0.012, ``keypoint_calibration.json``;
-    a walker's arms and legs add what the u's own chi^2 finds); body_sigma: where on the body "the
-    person's position" is (m, isotropic: added to the fit's covariance; with 0.01 and 1 cm an upright
-    stander's rendered bearing was twice as wide as her errors); foot_sigma: the spread of the
+    the stature: a walker's arms and legs); body_sigma: where on the body "the person's
+    position" is (m, isotropic: added to the fit's covariance; the truth's error across the line
+    of sight is ~1 cm on rendered frames and in keypoint sensing); foot_sigma: the spread of the
     feet's bias from person to person (share of the stature; the detector's ankles on rendered
     people: 0.014 robust spread less the pixels' 0.007; 0 for a sensor without one);
     pixel_bias: the detector's joints as a share of the stature plus a constant pixel offset
@@ -115,9 +114,10 @@ class LocaliserConfig:
     pixel noise the fit's own reduced chi^2 is pooled with to scale the pixels' noise (4: a body
     that fits better than the model is narrowed, one that fits worse widened; inf: only widened,
     as before 26 Nov); separate_scales: the centre line's u's and the joints' v's each scaled by
-    their own reduced chi^2 (so pooled), for a detector whose bearing and range err apart (rendered
-    frames: a stride's u's widened the range); False: one chi^2 scales all pixels (keypoint
-    sensing, ``SensingSpec.localiser``);
+    their own reduced chi^2 (so pooled): a stride off the centre line then widens the bearing, not
+    the range; False (default): one chi^2 scales all pixels. With the detector's own centre line
+    (``lateral_sigma`` 0.01, ``body_sigma`` 0.005) it calibrated the rendered bearing but made
+    standers look like walkers to the tracker (docs/perceived.md, twelfth pass);
     min_confidence: keypoints below it are not used; max_distance: estimates farther than this
     (m) are refused (a person on the horizon)."""
 
@@ -126,12 +126,12 @@ class LocaliserConfig:
     pitch_sigma_deg: float = 0.5
     pixel_sigma: float = 0.007
     pixel_floor: float = 0.3
-    lateral_sigma: float = 0.01
-    body_sigma: float = 0.005
+    lateral_sigma: float = 0.02
+    body_sigma: float = 0.01
     foot_sigma: float = 0.012
     pixel_bias: bool = True
     noise_prior_dof: float = 4.0
-    separate_scales: bool = True
+    separate_scales: bool = False
     min_confidence: float = 0.3
     max_distance: float = 80.0
 

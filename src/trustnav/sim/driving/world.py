@@ -245,14 +245,6 @@ class ControlSpec:
 MAX_PERCEPTION_LATENCY = 5.0
 
 
-# keypoint sensing keeps the centre line's noise and the one chi^2 of its calibration (issue 18:
-# the body's wander 0.02 of the stature, 1 cm where "the person" is on the body), against the
-# rendered frames' measured 0.01 and 5 mm with the u's and v's each scaled by their own chi^2
-# (LocaliserConfig; docs/perceived.md, twelfth pass): with the rendered values the keypoint drives
-# lost one claim each at 1 and 10 frames/s (Case II 1 frame/s, Case I 10 frames/s; 20 seeds)
-KEYPOINT_LATERAL_SIGMA = 0.02
-KEYPOINT_BODY_SIGMA = 0.01
-
 # how a person's placement errors repeat from frame to frame (docs/perceived.md, "Calibration"):
 # rendered frames through the detector repeat its bias for one pose and viewpoint; measured on Case I
 # seeds 100-101 at 10 frames/s, the raw placements' whitened errors correlate by 0.66-0.71 0.1 s
@@ -367,22 +359,12 @@ class SensingSpec:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
         error model draws no per-person bias of the feet and no pixel offset, and draws the pixels'
         noise at the model's own scale: ``foot_sigma`` 0, ``pixel_bias`` False, ``noise_prior_dof``
-        inf, and keeps its calibrated centre line, :data:`KEYPOINT_LATERAL_SIGMA` and
-        :data:`KEYPOINT_BODY_SIGMA` under one chi^2; rendered frames through the detector:
-        ``LocaliserConfig``'s measured defaults)."""
+        inf; rendered frames through the detector: ``LocaliserConfig``'s measured defaults)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
         if keypoints:
-            cfg = replace(
-                cfg,
-                foot_sigma=0.0,
-                pixel_bias=False,
-                noise_prior_dof=math.inf,
-                lateral_sigma=KEYPOINT_LATERAL_SIGMA,
-                body_sigma=KEYPOINT_BODY_SIGMA,
-                separate_scales=False,
-            )
+            cfg = replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf)
         if self.pixel_bias is not None:
             cfg = replace(cfg, pixel_bias=self.pixel_bias)
         if self.noise_prior_dof is not None:
