@@ -362,7 +362,7 @@ class GroundLocaliser:
                 [n_u, n_v],
             )
         else:
-            scale = np.full(len(obs), self._noise_scale(fit, len(obs) - 4))
+            scale = self._noise_scale(fit, len(obs) - 4)
         try:
             cov = np.linalg.inv(jac.T @ ((w / scale)[:, None] * jac) + np.diag(prior_w))
         except np.linalg.LinAlgError:
