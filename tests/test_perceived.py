@@ -4,6 +4,7 @@ the world tracker, the uncertainty margin and the drive on perceived states."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from hypothesis import strategies as st
 
 from trustnav.control import KinematicBicycle, LaneTrackingCost, MpcConfig, MpcController
 from trustnav.control.barrier import uncertainty_margins
-from trustnav.geometry import CameraSpec
+from trustnav.geometry import CameraPose, CameraSpec
 from trustnav.perception.localisation import GroundEstimate, GroundLocaliser, LocaliserConfig
 from trustnav.perception.types import Person
 from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
@@ -383,7 +384,8 @@ def test_error_correlation_follows_the_sensing_and_an_explicit_value_wins():
 
     assert SensingSpec().tracker(keypoints=True).error_correlation_s == 0.1
     render = SensingSpec().tracker(keypoints=False)
-    assert (render.error_correlation_s, render.error_shared) == (2.2, 0.66)
+    # rendered frames: the repeated error is the range scale's (thirteenth pass), the rest independent
+    assert (render.error_correlation_s, render.error_shared) == (2.2, 0.0)
     assert SensingSpec(error_correlation_s=0.5).tracker(keypoints=True).error_correlation_s == 0.5
     assert SensingSpec(error_shared=0.3).tracker(keypoints=False).error_shared == 0.3
     assert (render.pose_change, SensingSpec().tracker(keypoints=True).pose_change) == (0.03, 0.0)
@@ -902,3 +904,72 @@ def test_the_detectors_body_model_is_a_sensing_option_by_sensing_with_one_line_e
         path.write_text(case1.replace("\n[sensing]\n", f"\n[sensing]\n{bad}\n"))
         with pytest.raises(ValueError, match=f"{key} in \\[sensing\\]"):
             load_drive_scenario(path)
+
+
+def _approach(config: WorldTrackerConfig, scale: float, seconds: float = 2.4, rate: float = 10.0, seed: int = 0):
+    """A person standing at (25, 3) m, a camera driving from the origin toward her at 8 m/s along x,
+    each frame placing her at p + scale (p - c) (a range off by a factor that stays with her) with
+    0.15 m of fresh noise along the line of sight: per frame, whether the truth was inside the
+    track's 90 % region, and the tracker at the end."""
+    rng = np.random.default_rng(seed)
+    truth = np.array([25.0, 3.0])
+    tracker = WorldTracker(config)
+    spec = CameraSpec(1280, 720, 70.0)
+    inside = []
+    for k in range(round(seconds * rate) + 1):
+        t = k / rate
+        cam = CameraPose(spec, np.array([8.0 * t, 0.0, 1.5]), yaw=0.0, pitch=0.0)
+        ray = truth - cam.position[:2]
+        u = ray / np.hypot(*ray)
+        cov = 0.15**2 * np.outer(u, u) + 0.02**2 * np.eye(2)
+        placed = truth + scale * ray + rng.multivariate_normal(np.zeros(2), cov)
+        tracker.add_frame(t, [GroundEstimate(placed, cov, float(np.hypot(*ray)), 1.7, 0.0, 17)], camera=cam)
+        (state,) = tracker.predict(t)
+        d = state.position - truth
+        inside.append(float(d @ np.linalg.solve(state.position_covariance, d)) <= 4.605)
+    return np.array(inside), tracker
+
+
+def test_a_range_that_is_off_by_a_factor_is_a_scale_of_the_person_not_a_walk_toward_the_car():
+    """Thirteenth pass (issue 34 item 4): a monocular range off by a few per cent for one person
+    (her stature, a bowed head) moves her placements toward an approaching camera as the range
+    shrinks. Without a scale state the tracker believes her walking toward the car and its region
+    misses her; with it she stands, the scale is found and her region holds her."""
+    plain = WorldTrackerConfig(error_shared=0.0)
+    scaled = replace(plain, range_scale_sigma=0.03)
+    pooled, alone = [], []
+    for seed in range(6):
+        inside_plain, t_plain = _approach(plain, scale=0.05, seed=seed)
+        inside_scaled, t_scaled = _approach(scaled, scale=0.05, seed=seed)
+        assert inside_plain[-10:].mean() < 0.5  # the drift read as motion: the truth left the region
+        pooled.append(inside_scaled.mean())
+        (state,) = t_scaled.predict(t_scaled.time)
+        assert state.mean.shape == (4,) and state.covariance.shape == (4, 4)  # the scale stays inside
+        assert np.hypot(*state.velocity) < 0.5 * np.hypot(*t_plain.predict(t_plain.time)[0].velocity)
+        assert t_scaled.tracks[0].probabilities[0] > 0.5  # standing
+        assert abs(t_scaled.tracks[0].means[0][4] - 0.05) < 0.015  # the scale, found
+        # no scale in the placements: the state costs little room
+        base = _approach(plain, scale=0.0, seed=seed)[0].mean()
+        alone.append(_approach(scaled, scale=0.0, seed=seed)[0].mean() - base)
+    assert np.mean(pooled) >= 0.85 and np.mean(alone) >= -0.05
+    with pytest.raises(ValueError, match="range_scale_sigma"):
+        WorldTrackerConfig(range_scale_sigma=0.9)
+
+
+def test_rendered_sensing_estimates_the_range_scale_and_keypoints_do_not():
+    """The range scale is the rendered frames' repeated error (thirteenth pass); keypoint sensing
+    draws its errors anew in each frame and keeps the four-state tracker; a [sensing] value wins and
+    a bad one names the option."""
+    from trustnav.sim.driving.world import SensingSpec
+
+    render, keypoints = SensingSpec().tracker(), SensingSpec().tracker(keypoints=True)
+    assert (render.range_scale_sigma, render.error_shared, render.standing_psd) == (0.01, 0.0, 0.002)
+    assert (keypoints.range_scale_sigma, keypoints.standing_psd) == (0.0, WorldTrackerConfig.standing_psd)
+    assert SensingSpec(range_scale_sigma=0.0).tracker().range_scale_sigma == 0.0
+    assert SensingSpec(standing_psd=0.01).tracker(keypoints=True).standing_psd == 0.01
+    loc = SensingSpec().localiser()
+    assert (loc.separate_scales, loc.lateral_sigma, loc.body_sigma) == (True, 0.01, 0.005)
+    assert not SensingSpec().localiser(keypoints=True).separate_scales
+    for name in ("range_scale_sigma", "standing_psd"):
+        with pytest.raises(ValueError, match=name):
+            SensingSpec(**{name: -1.0})

@@ -34,10 +34,11 @@ pooled with ``noise_prior_dof`` pseudo-residuals at the model's scale: narrowed 
 fits the model closely (an upright stander), widened for one that does not (a body stretched or
 squashed, a walker's limbs off the centre line); the priors keep their width (before 26 Nov the
 whole covariance grew, the stature prior with it, and a walker's range region was too wide: issue
-34). With ``separate_scales`` (off by default) the centre line's u's (the bearing) and the
-joints' v's (the range) are two variance components, each scaled by its own chi^2: a stride off the
-centre line widens the region across the line of sight, not the range (issue 34 item 4, twelfth
-pass). The position's marginal 2x2 block is returned in world coordinates.
+34). With ``separate_scales`` (off by default; on for the drive's rendered frames, thirteenth
+pass) the centre line's u's (the bearing) and the joints' v's (the range) are two variance
+components, each scaled by its own chi^2: a stride off the centre line widens the region across the
+line of sight, not the range (issue 34 item 4, twelfth pass). The position's marginal 2x2 block is
+returned in world coordinates.
 Perception imports nothing of the simulator: the camera model is :mod:`trustnav.geometry`.
 """
 
@@ -116,8 +117,9 @@ class LocaliserConfig:
     as before 26 Nov); separate_scales: the centre line's u's and the joints' v's each scaled by
     their own reduced chi^2 (so pooled): a stride off the centre line then widens the bearing, not
     the range; False (default): one chi^2 scales all pixels. With the detector's own centre line
-    (``lateral_sigma`` 0.01, ``body_sigma`` 0.005) it calibrated the rendered bearing but made
-    standers look like walkers to the tracker (docs/perceived.md, twelfth pass);
+    (``lateral_sigma`` 0.01, ``body_sigma`` 0.005) it calibrates the rendered bearing; the drive's
+    rendered sensing uses the three with the tracker's range scale, without which the standers
+    looked like walkers to the tracker (docs/perceived.md, twelfth and thirteenth passes);
     min_confidence: keypoints below it are not used; max_distance: estimates farther than this
     (m) are refused (a person on the horizon)."""
 

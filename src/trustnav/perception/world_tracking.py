@@ -91,7 +91,14 @@ class WorldTrackerConfig:
     stay on the distance alone. By the distance alone (false), the track that knows least where
     it is wins: a bystander's track unseen for 10 s beside the car (sigma 3.3 m) took a crosser's
     detection 2.9 m from it from her own track, 0.5 m from it (sigma 0.07 m), and stood as a
-    ghost below the image (issue 34)."""
+    ghost below the image (issue 34).
+    range_scale_sigma: a monocular placement's range is off by a factor that stays with the person
+    (their stature against the prior, how the pose shortens them: a texter's bowed head): a frame
+    places p + s (p - c) (c the camera), and s, the person's range scale, is a state of the track
+    (prior sigma ``range_scale_sigma``, constant), both models carrying it. As the car approaches, a
+    fixed scale moves the placements toward the camera; without the state the tracker reads that
+    as walking, or, with the frames' errors inflated instead (``error_shared``), widens every
+    region for it. 0 (default): no scale state, the four-state filter."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
@@ -111,6 +118,7 @@ class WorldTrackerConfig:
     pose_change: float = 0.0
     out_of_view_max_sigma: float = 1.5
     normalized_distance: bool = True
+    range_scale_sigma: float = 0.0
 
     def __post_init__(self) -> None:
         for name, lo, hi in (
@@ -130,6 +138,7 @@ class WorldTrackerConfig:
             ("error_correlation_s", 0.0, 60.0),
             ("error_shared", 0.0, 1.0),
             ("pose_change", 0.0, 1.0),
+            ("range_scale_sigma", 0.0, 0.5),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
@@ -184,11 +193,19 @@ class WorldTrack:
 
     @property
     def mean(self) -> NDArray[np.float64]:
-        return _combine(self.means, self.covariances, self.probabilities)[0]
+        return _combine(self.means, self.covariances, self.probabilities)[0][:4]
 
     @property
     def covariance(self) -> NDArray[np.float64]:
-        return _combine(self.means, self.covariances, self.probabilities)[1]
+        return _combine(self.means, self.covariances, self.probabilities)[1][:4, :4]
+
+    def measured(self, camera_xy: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Where the next frame from a camera at ``camera_xy`` should place this person: mean (2,)
+        and covariance (2, 2) of the position, scaled about the camera by the track's range
+        scale if it has one."""
+        mean, cov = _combine(self.means, self.covariances, self.probabilities)
+        h = _h(mean, camera_xy)
+        return _measure(mean, camera_xy), h @ cov @ h.T
 
 
 def _combine(means, covs, probs) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -199,14 +216,22 @@ def _combine(means, covs, probs) -> tuple[NDArray[np.float64], NDArray[np.float6
 
 
 def _models(dt: float, cfg: WorldTrackerConfig) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """(F, Q) of the standing and the walking model over ``dt`` seconds."""
+    """(F, Q) of the standing and the walking model over ``dt`` seconds (with ``range_scale_sigma``,
+    both carry the person's range scale, constant)."""
     f_walk = np.eye(4)
     f_walk[0, 2] = f_walk[1, 3] = dt
     a, b, c = dt**3 / 3.0, dt**2 / 2.0, dt
     q_walk = cfg.accel_psd * np.array([[a, 0, b, 0], [0, a, 0, b], [b, 0, c, 0], [0, b, 0, c]])
     f_stand = np.diag([1.0, 1.0, 0.0, 0.0])
     q_stand = np.diag([cfg.standing_psd * dt] * 2 + [1e-6] * 2)
-    return [(f_stand, q_stand), (f_walk, q_walk)]
+    if cfg.range_scale_sigma <= 0.0:
+        return [(f_stand, q_stand), (f_walk, q_walk)]
+    out = []
+    for f, q in ((f_stand, q_stand), (f_walk, q_walk)):
+        f5, q5 = np.eye(5), np.zeros((5, 5))
+        f5[:4, :4], q5[:4, :4] = f, q
+        out.append((f5, q5))
+    return out
 
 
 def _mix(t: WorldTrack, dt: float, cfg: WorldTrackerConfig):
@@ -233,16 +258,37 @@ def _started(t: WorldTrack, dt: float, cfg: WorldTrackerConfig) -> tuple[NDArray
     track long seen standing (issue 34: at 1 frame/s a step-out of 1.3 m split a person into a
     standing track and a new one without velocity)."""
     mean = t.means[0].copy()
-    mean[2:] = 0.0
+    mean[2:4] = 0.0
     cov = t.covariances[0].copy()
-    cov[2:, :] = 0.0
-    cov[:, 2:] = 0.0
-    cov[2:, 2:] = cfg.initial_speed_sigma**2 * np.eye(2)
+    cov[2:4, :] = 0.0
+    cov[:, 2:4] = 0.0
+    cov[2:4, 2:4] = cfg.initial_speed_sigma**2 * np.eye(2)
     f, q = _models(dt, cfg)[1]
     return f @ mean, f @ cov @ f.T + q
 
 
 _H = np.hstack([np.eye(2), np.zeros((2, 2))])
+
+
+def _h(mean: NDArray[np.float64], camera_xy: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The measurement matrix at ``mean``: a frame places the position; with a range scale state
+    (n = 5), the position moved away from the camera by the scale (z = p + s (p - c), linearised)."""
+    if mean.size == 4:
+        return _H
+    h = np.zeros((2, 5))
+    if camera_xy is None:  # no camera to scale about: the position alone
+        h[:, :2] = np.eye(2)
+        return h
+    h[:, :2] = np.eye(2) * (1.0 + mean[4])
+    h[:, 4] = mean[:2] - camera_xy
+    return h
+
+
+def _measure(mean: NDArray[np.float64], camera_xy: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """Where a frame from a camera at ``camera_xy`` places a person of state ``mean``."""
+    if mean.size == 4 or camera_xy is None:
+        return mean[:2].copy()
+    return mean[:2] + mean[4] * (mean[:2] - camera_xy)
 
 
 def _log_det(s: NDArray[np.float64]) -> float:
@@ -310,7 +356,8 @@ class WorldTracker:
         if time <= t.time:
             return t.mean.copy(), t.covariance.copy()
         means, covs, probs = _mix(t, time - t.time, self.config)
-        return _combine(means, covs, probs)
+        mean, cov = _combine(means, covs, probs)
+        return mean[:4], cov[:4, :4]
 
     def add_frame(
         self,
@@ -329,6 +376,10 @@ class WorldTracker:
             raise ValueError(f"time must be finite and not go back (last {self.time}), got {time!r}")
         cfg = self.config
         self.time = float(time)
+        cam_xy = None
+        if camera is not None and cfg.range_scale_sigma > 0.0:
+            cam_xy = np.asarray(camera.position[:2], dtype=float)
+            cam_xy = cam_xy if to_world is None else np.asarray(to_world) @ cam_xy
         started: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         for a, t in enumerate(self.tracks):
             if time > t.time and t.probabilities[0] >= 0.5:  # seen standing: she may have started walking
@@ -347,12 +398,12 @@ class WorldTracker:
             dist2 = np.full((n_t, n_d), np.inf)
             moved = np.zeros((n_t, n_d), dtype=bool)
             for a, t in enumerate(self.tracks):
-                s_pos = t.covariance[:2, :2]
+                z_pos, s_pos = t.measured(cam_xy)
                 recent = t.box is not None and time - t.last_seen <= cfg.overlap_seconds
                 for b, i in enumerate(idx):
                     e = estimates[i]
                     assert e is not None
-                    d = e.position - t.mean[:2]
+                    d = e.position - z_pos
                     s_in = s_pos + e.covariance
                     m2 = float(d @ np.linalg.solve(s_in, d))
                     iou = 0.0
@@ -368,8 +419,9 @@ class WorldTracker:
                         # association, loose ones included (a walker's estimate that strays from
                         # her own track must not make a bystander's track walk off with her)
                         m0, p0 = started[a]
-                        r = e.position - m0[:2]
-                        m2s = float(r @ np.linalg.solve(p0[:2, :2] + e.covariance, r))
+                        h0 = _h(m0, cam_xy)
+                        r = e.position - _measure(m0, cam_xy)
+                        m2s = float(r @ np.linalg.solve(h0 @ p0 @ h0.T + e.covariance, r))
                         if m2s <= cfg.gate:
                             dist2[a, b] = m2
                             cost[a, b] = 10.0 * cfg.gate + m2s
@@ -396,7 +448,7 @@ class WorldTracker:
                 alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, _shared(t, e, cfg))
                 if alike > 1.0:  # a frame soon after the last: its range error is mostly that frame's again
                     e = replace(e, covariance=inflated_along(e.covariance, alike))
-                self._correct(t, e)
+                self._correct(t, e, cam_xy)
                 t.hits += 1
                 t.last_seen = float(time)
                 t.box = None if boxes is None or boxes[i] is None else np.asarray(boxes[i], dtype=float)
@@ -409,7 +461,7 @@ class WorldTracker:
             if ids[i] is None:
                 e = estimates[i]
                 assert e is not None
-                ids[i] = self._birth(e, time, None if boxes is None else boxes[i])
+                ids[i] = self._birth(e, time, None if boxes is None else boxes[i], cam_xy)
         # a tentative track missed once is dropped; a confirmed one unseen too long where it should
         # have been seen (or out of view), passed, or too uncertain
         keep = []
@@ -452,17 +504,19 @@ class WorldTracker:
                 t.history.append((float(time), t.mean.copy()))
         return ids
 
-    def _correct(self, t: WorldTrack, e: GroundEstimate) -> None:
+    def _correct(self, t: WorldTrack, e: GroundEstimate, camera_xy: NDArray[np.float64] | None = None) -> None:
         """Kalman update of each model (Joseph form) and of the model probabilities."""
         like = np.empty(2)
+        n = t.means.shape[1]
         for j in range(2):
             p = t.covariances[j]
-            s = _H @ p @ _H.T + e.covariance
+            h = _h(t.means[j], camera_xy)
+            s = h @ p @ h.T + e.covariance
             s_inv = np.linalg.inv(s)
-            r = e.position - _H @ t.means[j]
-            k = p @ _H.T @ s_inv
+            r = e.position - _measure(t.means[j], camera_xy)
+            k = p @ h.T @ s_inv
             t.means[j] = t.means[j] + k @ r
-            i_kh = np.eye(4) - k @ _H
+            i_kh = np.eye(n) - k @ h
             pj = i_kh @ p @ i_kh.T + k @ e.covariance @ k.T
             t.covariances[j] = 0.5 * (pj + pj.T)
             like[j] = math.exp(-0.5 * float(r @ s_inv @ r)) / (2.0 * math.pi * math.sqrt(max(np.linalg.det(s), 1e-300)))
@@ -472,14 +526,24 @@ class WorldTracker:
             t.probabilities = np.clip(post / total, 1e-6, 1.0)
             t.probabilities /= t.probabilities.sum()
 
-    def _birth(self, e: GroundEstimate, time: float, box: ArrayLike | None) -> int:
+    def _birth(
+        self, e: GroundEstimate, time: float, box: ArrayLike | None, camera_xy: NDArray[np.float64] | None = None
+    ) -> int:
         cfg = self.config
-        walk = np.zeros((4, 4))
+        n = 5 if cfg.range_scale_sigma > 0.0 else 4
+        walk = np.zeros((n, n))
         walk[:2, :2] = e.covariance
-        walk[2:, 2:] = cfg.initial_speed_sigma**2 * np.eye(2)
+        walk[2:4, 2:4] = cfg.initial_speed_sigma**2 * np.eye(2)
+        if n == 5:  # the frame placed p (1 + s) - s c: the position uncertain by the scale's prior along the ray
+            walk[4, 4] = cfg.range_scale_sigma**2
+            if camera_xy is not None:
+                ray = np.asarray(e.position) - camera_xy
+                walk[:2, :2] += cfg.range_scale_sigma**2 * np.outer(ray, ray)
+                walk[:2, 4] = walk[4, :2] = -(cfg.range_scale_sigma**2) * ray
         stand = walk.copy()
-        stand[2:, 2:] = 1e-6 * np.eye(2)
-        mean = np.array([*e.position, 0.0, 0.0])
+        stand[2:4, 2:4] = 1e-6 * np.eye(2)
+        mean = np.zeros(n)
+        mean[:2] = e.position
         t = WorldTrack(
             track_id=self._next_id,
             time=float(time),

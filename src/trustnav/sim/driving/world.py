@@ -266,6 +266,19 @@ KEYPOINT_ERROR_SHARED = 1.0
 # of a stride (WorldTrackerConfig.pose_change). Keypoint sensing has no repeated errors: 0.
 RENDER_POSE_CHANGE = 0.03
 KEYPOINT_POSE_CHANGE = 0.0
+# Issue 34 item 4, thirteenth pass (docs/perceived.md): on rendered frames what repeats of a person's
+# range error is a scale, p + s (p - c), that stays with the person (stature, a bowed head), which
+# the tracker now estimates (WorldTrackerConfig.range_scale_sigma): the texting stander's along error
+# 2.1 -> 0.9 sigma rms in the replays. With it the frames' remaining errors count as independent
+# (error_shared 0: no inflation), a stander shuffles by 0.002 m^2/s (the 0.005 random walk had
+# covered the range's drift), and the bearing is believed by its own residuals with the detector's
+# centre line (LocaliserConfig separate_scales, lateral_sigma 0.01, body_sigma 5 mm). Keypoint
+# sensing draws its errors anew in each frame: no scale, the defaults.
+RENDER_RANGE_SCALE_SIGMA = 0.01
+RENDER_FRAME_ERROR_SHARED = 0.0
+RENDER_STANDING_PSD = 0.002
+RENDER_LATERAL_SIGMA = 0.01
+RENDER_BODY_SIGMA = 0.005
 
 
 @dataclass(frozen=True)
@@ -297,8 +310,11 @@ class SensingSpec:
     person's placement errors stay alike, fading linearly) and ``error_shared`` (their correlation
     between frames close together): frames closer together count as fewer placements, see
     :class:`~trustnav.perception.world_tracking.WorldTrackerConfig`; default by sensing: 2.2 s and
-    0.66 for rendered frames (measured), 0.1 s and 1 for keypoint sensing, whose errors are drawn
-    anew in each frame),
+    0 for rendered frames (their repeated error, 0.66 of a frame's, is the range scale's below),
+    0.1 s and 1 for keypoint sensing, whose errors are drawn anew in each frame),
+    ``range_scale_sigma`` (the person's range scale the tracker estimates: a frame places p + s (p -
+    c); default by sensing: 0.01 for rendered frames, 0 for keypoints) and ``standing_psd`` (m^2/s,
+    the tracker's standing walk; by sensing: 0.002 for rendered frames, 0.005 for keypoints),
     ``pose_change`` (a share of the body's height: the errors repeat only while the pose does; a
     frame whose limbs moved by d since the person's last keeps exp(-(d / pose_change)^2 / 2) of
     ``error_shared``; default by sensing: 0.03 for rendered frames, 0, not looked at, for keypoints),
@@ -337,11 +353,17 @@ class SensingSpec:
     error_correlation_s: Annotated[
         float | None, Maybe(Number(0, 60, unit=" s"), "by sensing: 2.2 s for rendered frames, 0.1 s for keypoints")
     ] = None
-    error_shared: Annotated[
-        float | None, Maybe(Number(0, 1), "by sensing: 0.66 for rendered frames, 1 for keypoints")
-    ] = None
+    error_shared: Annotated[float | None, Maybe(Number(0, 1), "by sensing: 0 for rendered frames, 1 for keypoints")] = (
+        None
+    )
     pose_change: Annotated[
         float | None, Maybe(Number(0, 1), "by sensing: 0.03 for rendered frames, 0 for keypoints")
+    ] = None
+    range_scale_sigma: Annotated[
+        float | None, Maybe(Number(0, 0.5), "by sensing: 0.01 for rendered frames, 0 for keypoints")
+    ] = None
+    standing_psd: Annotated[
+        float | None, Maybe(Number(0, 10, unit=" m^2/s"), "by sensing: 0.002 for rendered frames, 0.005 for keypoints")
     ] = None
     track_keep: float = 2.5
     perception_latency: Annotated[float, Number(0, MAX_PERCEPTION_LATENCY, unit=" s")] = 0.0
@@ -359,12 +381,16 @@ class SensingSpec:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
         error model draws no per-person bias of the feet and no pixel offset, and draws the pixels'
         noise at the model's own scale: ``foot_sigma`` 0, ``pixel_bias`` False, ``noise_prior_dof``
-        inf; rendered frames through the detector: ``LocaliserConfig``'s measured defaults)."""
+        inf; rendered frames through the detector: ``LocaliserConfig``'s measured defaults, the
+        bearing by its own residuals with the detector's centre line, :data:`RENDER_LATERAL_SIGMA`,
+        :data:`RENDER_BODY_SIGMA`)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
         if keypoints:
             cfg = replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf)
+        else:
+            cfg = replace(cfg, separate_scales=True, lateral_sigma=RENDER_LATERAL_SIGMA, body_sigma=RENDER_BODY_SIGMA)
         if self.pixel_bias is not None:
             cfg = replace(cfg, pixel_bias=self.pixel_bias)
         if self.noise_prior_dof is not None:
@@ -374,13 +400,20 @@ class SensingSpec:
     def tracker(self, keypoints: bool = False) -> WorldTrackerConfig:
         """The world tracker's configuration (``keypoints``: for keypoint sensing, whose default
         ``error_correlation_s`` and ``error_shared`` are :data:`KEYPOINT_ERROR_CORRELATION_S` and
-        :data:`KEYPOINT_ERROR_SHARED`; rendered frames: :data:`RENDER_ERROR_CORRELATION_S`,
-        :data:`RENDER_ERROR_SHARED`)."""
+        :data:`KEYPOINT_ERROR_SHARED`, no range scale and the tracker's standing walk; rendered
+        frames: a range scale of :data:`RENDER_RANGE_SCALE_SIGMA` and the frames' errors otherwise
+        independent, :data:`RENDER_FRAME_ERROR_SHARED`, a standing walk of
+        :data:`RENDER_STANDING_PSD`)."""
         tau, shared, pose = self.error_correlation_s, self.error_shared, self.pose_change
+        scale, standing = self.range_scale_sigma, self.standing_psd
         if tau is None:
             tau = KEYPOINT_ERROR_CORRELATION_S if keypoints else RENDER_ERROR_CORRELATION_S
         if shared is None:
-            shared = KEYPOINT_ERROR_SHARED if keypoints else RENDER_ERROR_SHARED
+            shared = KEYPOINT_ERROR_SHARED if keypoints else RENDER_FRAME_ERROR_SHARED
+        if scale is None:
+            scale = 0.0 if keypoints else RENDER_RANGE_SCALE_SIGMA
+        if standing is None:
+            standing = WorldTrackerConfig.standing_psd if keypoints else RENDER_STANDING_PSD
         if pose is None:
             pose = KEYPOINT_POSE_CHANGE if keypoints else RENDER_POSE_CHANGE
         return WorldTrackerConfig(
@@ -389,6 +422,8 @@ class SensingSpec:
             error_correlation_s=tau,
             error_shared=shared,
             pose_change=pose,
+            range_scale_sigma=float(scale),
+            standing_psd=float(standing),
         )
 
 
