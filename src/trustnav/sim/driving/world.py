@@ -269,7 +269,7 @@ KEYPOINT_POSE_CHANGE = 0.0
 # Issue 34 item 4, thirteenth pass (docs/perceived.md): on rendered frames what repeats of a person's
 # range error is a scale, p + s (p - c), that stays with the person (stature, a bowed head), which
 # the tracker now estimates (WorldTrackerConfig.range_scale_sigma): the texting stander's along error
-# 2.1 -> 0.9 sigma rms in the replays. With it the frames' remaining errors count as independent
+# 2.1 -> 1.45 sigma rms in the replays. With it the frames' remaining errors count as independent
 # (error_shared 0: no inflation), a stander shuffles by 0.002 m^2/s (the 0.005 random walk had
 # covered the range's drift), and the bearing is believed by its own residuals with the detector's
 # centre line (LocaliserConfig separate_scales, lateral_sigma 0.01, body_sigma 5 mm). Keypoint
