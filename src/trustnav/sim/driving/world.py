@@ -279,6 +279,14 @@ RENDER_FRAME_ERROR_SHARED = 0.0
 RENDER_STANDING_PSD = 0.002
 RENDER_LATERAL_SIGMA = 0.01
 RENDER_BODY_SIGMA = 0.005
+# the tracker's options that SensingSpec leaves to the sensing (None): (keypoints, rendered frames)
+_TRACKER_BY_SENSING = {
+    "error_correlation_s": (KEYPOINT_ERROR_CORRELATION_S, RENDER_ERROR_CORRELATION_S),
+    "error_shared": (KEYPOINT_ERROR_SHARED, RENDER_FRAME_ERROR_SHARED),
+    "pose_change": (KEYPOINT_POSE_CHANGE, RENDER_POSE_CHANGE),
+    "range_scale_sigma": (0.0, RENDER_RANGE_SCALE_SIGMA),
+    "standing_psd": (WorldTrackerConfig.standing_psd, RENDER_STANDING_PSD),
+}
 
 
 @dataclass(frozen=True)
@@ -404,27 +412,10 @@ class SensingSpec:
         frames: a range scale of :data:`RENDER_RANGE_SCALE_SIGMA` and the frames' errors otherwise
         independent, :data:`RENDER_FRAME_ERROR_SHARED`, a standing walk of
         :data:`RENDER_STANDING_PSD`)."""
-        tau, shared, pose = self.error_correlation_s, self.error_shared, self.pose_change
-        scale, standing = self.range_scale_sigma, self.standing_psd
-        if tau is None:
-            tau = KEYPOINT_ERROR_CORRELATION_S if keypoints else RENDER_ERROR_CORRELATION_S
-        if shared is None:
-            shared = KEYPOINT_ERROR_SHARED if keypoints else RENDER_FRAME_ERROR_SHARED
-        if scale is None:
-            scale = 0.0 if keypoints else RENDER_RANGE_SCALE_SIGMA
-        if standing is None:
-            standing = WorldTrackerConfig.standing_psd if keypoints else RENDER_STANDING_PSD
-        if pose is None:
-            pose = KEYPOINT_POSE_CHANGE if keypoints else RENDER_POSE_CHANGE
-        return WorldTrackerConfig(
-            accel_psd=self.accel_psd,
-            keep_seconds=self.track_keep,
-            error_correlation_s=tau,
-            error_shared=shared,
-            pose_change=pose,
-            range_scale_sigma=float(scale),
-            standing_psd=float(standing),
-        )
+        given = {name: getattr(self, name) for name in _TRACKER_BY_SENSING}
+        by_sensing = {name: float(pair[0 if keypoints else 1] if given[name] is None else given[name])
+                      for name, pair in _TRACKER_BY_SENSING.items()}  # fmt: skip
+        return WorldTrackerConfig(accel_psd=self.accel_psd, keep_seconds=self.track_keep, **by_sensing)
 
 
 @dataclass(frozen=True)
