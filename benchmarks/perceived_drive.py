@@ -154,6 +154,7 @@ def summarise(name: str, entries: list[dict], gap: float) -> dict:
     below = sum(m["margin_violations"] > 0 for m in runs)
     closest = min(min(p["min_distance"] for p in m["pedestrians"]) for m in runs)
     goal = sum(m["reached_goal"] for m in runs)
+    times = [m["time_to_goal"] for m in runs if m["time_to_goal"] is not None]
     peds = [p for m in runs for p in m["pedestrians"] if p.get("localisation_error_median") is not None]
     errors = np.array([e for entry in entries for e in entry["errors"]], dtype=float).reshape(-1, 3)
     row = {
@@ -164,10 +165,17 @@ def summarise(name: str, entries: list[dict], gap: float) -> dict:
         f"distracted_wider_by_{gap:g}_m": clear,
         "gap_median_m": round(float(np.median([d - a for a, d in pairs])), 3),
         "runs_below_R": below,
+        # which ones, to trace: the seeds whose distracted pedestrian was not passed wider, and the
+        # runs (seed/run) with a true distance below R
+        "seeds_not_wider": [e["seed"] for e, (a, d) in zip(entries, pairs, strict=True) if not d > a],
+        "runs_below_R_at": [
+            f"{e['seed']}/{k}" for e in entries for k, m in e["runs"].items() if m["margin_violations"] > 0
+        ],
         "closest_m": round(closest, 3),
         "reached_goal": goal,
         "relaxed_steps": int(sum(m["relaxed_steps"] for m in runs)),
-        "time_to_goal_median": float(np.median([m["time_to_goal"] or np.nan for m in runs])),
+        # over the runs that reached it (reached_goal counts them; a miss made it NaN)
+        "time_to_goal_median": float(np.median(times)) if times else None,
     }
     if peds:  # pooled over every (pedestrian, frame) of every run
         row.update(

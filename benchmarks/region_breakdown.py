@@ -162,13 +162,15 @@ def claims(recs: list[dict]) -> None:
     attentive and the distracted pedestrian (Case I: its two people; Case II: its two runs' one),
     whether the distracted one was passed wider, and the runs with a true distance below R."""
     worlds: dict[int, dict] = {}
-    below = 0
+    below: list[str] = []  # the runs (seed/run) with a true distance below R
     for rec in recs:
         m = rec.get("metrics")
         if m is None:
             print("claims: a recording of an older --save without the drives' metrics")
             return
-        below += m["margin_violations"] > 0
+        run = {True: "attentive", False: "distracted", None: "both"}[rec["att"]]
+        if m["margin_violations"] > 0:
+            below.append(f"{rec['seed']}/{run}")
         w = worlds.setdefault(rec["seed"], {})
         for p in m["pedestrians"]:
             key = "attentive" if (p["attentive"] if rec["att"] is None else rec["att"]) else "distracted"
@@ -178,7 +180,8 @@ def claims(recs: list[dict]) -> None:
     gaps = " ".join(f"{s}:{w['distracted'] - w['attentive']:+.2f}" for s, w in sorted(worlds.items()) if len(w) == 2)
     closest = min(min(w.values()) for w in worlds.values())
     print(f"claims (recorded drives): distracted passed wider in {wider} of {len(pairs)} worlds; runs below R "
-          f"{below} of {len(recs)}; closest {closest:.2f} m; gaps {gaps}")  # fmt: skip
+          f"{len(below)} of {len(recs)}{' (' + ' '.join(below) + ')' if below else ''}; closest {closest:.2f} m; "
+          f"gaps {gaps}")  # fmt: skip
 
 
 def _inside(b: np.ndarray) -> str:

@@ -742,6 +742,36 @@ def test_the_coverage_interval_is_over_worlds_and_narrows_with_them(repo_root):
         coverage_interval([{"errors": []}])
 
 
+def test_the_drive_summary_names_the_worlds_that_broke_a_claim(repo_root):
+    """perceived_drive.py's summary names the seeds whose distracted pedestrian was not passed wider
+    and the runs below R, so that a failure on 200 worlds can be driven again and traced."""
+    import sys
+
+    sys.path.insert(0, str(repo_root / "benchmarks"))
+    try:
+        from perceived_drive import summarise
+    finally:
+        sys.path.pop(0)
+
+    def run(distance: float, attentive: bool, violations: int = 0) -> dict:
+        ped = {"min_distance": distance, "attentive": attentive}
+        return {"pedestrians": [ped], "margin_violations": violations, "reached_goal": True,
+                "relaxed_steps": 0, "time_to_goal": 9.0}  # fmt: skip
+
+    entries = [
+        {"seed": 3, "runs": {"attentive": run(3.0, True), "distracted": run(4.0, False)}, "errors": []},
+        {"seed": 7, "runs": {"attentive": run(3.5, True), "distracted": run(2.4, False, 4)}, "errors": []},
+        {"seed": 9, "runs": {"attentive": run(2.45, True, 1), "distracted": run(3.0, False)}, "errors": []},
+    ]
+    row = summarise("case-2", entries, 0.5)
+    assert row["distracted_wider"] == 2 and row["seeds_not_wider"] == [7]
+    assert row["runs_below_R"] == 2 and row["runs_below_R_at"] == ["7/distracted", "9/attentive"]
+    # a run that missed the goal is counted, not a NaN in the median of the others
+    entries[1]["runs"]["distracted"]["reached_goal"], entries[1]["runs"]["distracted"]["time_to_goal"] = False, None
+    row = summarise("case-2", entries, 0.5)
+    assert row["reached_goal"] == 5 and row["time_to_goal_median"] == 9.0
+
+
 def test_the_region_breakdown_replays_the_drive_it_recorded(repo_root, tmp_path, capsys):
     """benchmarks/region_breakdown.py (issue 34 item 4) explains a drive's 90 % regions by replaying
     the localiser and the tracker on the frames it recorded: as is, the replay must give the drive's
