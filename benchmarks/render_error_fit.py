@@ -59,7 +59,7 @@ from region_breakdown import set_value
 from trustnav.perception.localisation import BODY_POINTS, GroundLocaliser, LocaliserConfig, pose_change
 from trustnav.perception.world_tracking import correlated_error_factor
 from trustnav.sim.driving.episode import street_of
-from trustnav.sim.driving.world import RENDER_ERROR_CORRELATION_S, RENDER_ERROR_SHARED, RENDER_POSE_CHANGE
+from trustnav.sim.driving.world import SensingSpec
 
 BATCH_SPANS = (1.0, 2.0, 3.0, 4.0)
 LAGS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)
@@ -263,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
         people += series(rec, loc)
     print(f"{len(args.recordings)} recordings, {len(people)} person-drives, load {os.getloadavg()[0]:.1f}"
           + (f"; localiser with {' '.join(args.set)}" if args.set else ""))  # fmt: skip
-    pose_scale = RENDER_POSE_CHANGE  # the render sensing's pose_change
+    drive = SensingSpec().tracker(keypoints=False)  # the rendered drive's tracker, as configured
+    pose_scale = drive.pose_change
     groups = {name: [p for p in people if p["kind"] == name] for name in sorted({p["kind"] for p in people})}
     standers = [p for p in people if p["kind"].startswith("standers")]
     if standers:  # the tracker has one setting for every stander: the fit to use is the pooled one
@@ -289,9 +290,9 @@ def main(argv: list[str] | None = None) -> int:
         for rate, span, f in ((10.0, 1.0, f10), (10.0, 2.0, f10), (1.0, 3.0, f1), (1.0, 5.0, f1)):
             es = min(1.0, shared / f) if f and math.isfinite(f) else shared
             model = correlated_error_factor(1.0 / rate, tau, shared)
-            main_factor = correlated_error_factor(1.0 / rate, RENDER_ERROR_CORRELATION_S, RENDER_ERROR_SHARED * f)
+            main_factor = correlated_error_factor(1.0 / rate, drive.error_correlation_s, drive.error_shared * f)
             print(f"  {rate:g} frames/s: error_shared {es:.3f} (fit / pose factor); the tracker's factor {model:.2f} "
-                  f"(main {main_factor:.2f}); measured n var(mean) / var over "
+                  f"(the drive's {main_factor:.2f}); measured n var(mean) / var over "
                   f"{span:g} s spans {measured_inflation(group, rate, span):.2f}")  # fmt: skip
         # the batch-means estimate: the linear fade ends where the correlation first turns <= 0
         # (the initial positive sequence, Geyer 1992), and its share makes the tracker's factor at
