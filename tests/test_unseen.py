@@ -195,3 +195,56 @@ def test_the_speed_benchmarks_refuse_a_bad_rate_or_count_by_name(repo_root, scri
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert out.returncode == 2
     assert named in out.stderr.strip().splitlines()[-1]
+
+
+def test_the_view_the_yielding_layer_is_told_is_the_cameras():
+    """The controller's notion of what the camera sees (``camera_view``) agrees with the camera: a
+    person standing just beyond ``view_near`` ahead is whole in the image, just before it her feet
+    are below it; the drive's controller (caution on) is told the view and the caution's reaction
+    as the time a place must be looked at."""
+    from trustnav.geometry import CameraSpec
+    from trustnav.sim.driving.world import ControlSpec, camera_view
+
+    spec = CameraSpec(width=1280, height=720, fov_deg=70.0, forward=1.5, up=1.7, pitch_deg=3.0)
+    view = camera_view(spec)
+    pose = spec.pose(np.zeros(2), 0.0)
+    cam = np.asarray(pose.position, dtype=float)
+
+    def whole(ahead):  # head, middle and feet of a person standing ``ahead`` m in front of the camera
+        x = cam[0] + ahead
+        return bool(pose.in_view(np.array([[x, 0.0, 1.6], [x, 0.0, 0.8], [x, 0.0, 0.02]])).all())
+
+    assert not whole(view["view_near"] - 0.1) and whole(view["view_near"] + 0.1)
+    assert view["view_deg"] == 70.0 and view["view_forward"] == 1.5
+    cfg = ControlSpec(caution=True).config(camera_rate=1.0, camera=spec)
+    assert cfg.yielding.view_deg == 70.0 and cfg.yielding.view_confirm == pytest.approx(cfg.caution.reaction)
+    assert ControlSpec(caution=False).config(camera_rate=1.0, camera=spec).yielding.view_deg == 0.0
+
+
+@pytest.mark.slow
+def test_a_texter_lost_from_view_beside_a_stopped_car_is_never_passed_within_r(repo_root):
+    """Issue 34, varied Case II world 881 (1 frame/s, caution on, perceived): the texter slides into
+    the lane; the car, bent away by her barrier, stops for her turned away and loses her from its
+    camera's view; it forgot her after ``memory`` s and passed her at 1.42 m. Now it passes around
+    where she would be, or waits: never within R. World 700 (attentive): a remembered walker whose
+    prediction strayed from her track is released when the camera looks there and finds nobody;
+    the car reaches its goal, at least R from her."""
+    import sys
+
+    sys.path.insert(0, str(repo_root / "benchmarks"))
+    try:
+        from perceived_drive import varied
+    finally:
+        sys.path.pop(0)
+    sc = load_drive_scenario("case-2")
+    sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=True))
+
+    def drive(seed, attentive):
+        r = run_drive(varied(sc, seed), sensing="keypoints", seed=seed, attentive=attentive, state="perceived")
+        return r.metrics()
+
+    lost = drive(881, False)
+    assert lost["pedestrians"][0]["min_distance"] >= 2.5
+    assert lost["road_departure_max"] == 0.0
+    strayed = drive(700, True)
+    assert strayed["reached_goal"] and strayed["pedestrians"][0]["min_distance"] >= 2.5

@@ -228,3 +228,114 @@ def test_yield_config_is_validated():
         YieldConfig(lookahead=0.0)
     with pytest.raises(ValueError, match="deceleration"):
         YieldConfig(deceleration=float("inf"))
+
+
+NOBODY = np.zeros((0, 2))
+
+
+def _remembered(y, t, car=(0.0, 0.0), heading=0.0, peds=NOBODY):
+    return y.remembered(t, np.array(car), heading, ROAD["road_start"], ROAD["road_normal"], ROAD["room"], 2.5, peds)
+
+
+def test_one_the_car_waited_for_is_passed_around_after_memory_not_forgotten():
+    """Issue 34 (varied Case II worlds, 1 frame/s): a texter the car stopped for beside her, turned
+    away, left its camera's view; after ``memory`` s the car forgot her and drove past within R
+    (1.42 m). Now, not found again, she is passed around where she would be (her last velocity
+    across the road) until the car is R past her, she is found again, or her way leaves the road."""
+    y = Yielder(YieldConfig())
+    none = np.zeros((0, 2))
+
+    def step(t, peds, vels):
+        return y.decide(np.zeros(2), 0.0, pedestrians=peds, velocities=vels, radii=np.full(len(peds), 3.5),
+                        time=t, safety_radius=2.5, heading=0.0, **ROAD)  # fmt: skip
+
+    assert step(0.0, np.array([[6.0, 0.5]]), np.array([[0.0, -0.05]])) is not None  # sliding right at 0.05 m/s
+    assert step(7.9, none, none) is not None  # waited for
+    assert step(8.1, none, none) is None  # the wait is over ...
+    pos, vel, sigma = _remembered(y, 8.1)  # ... but she is not forgotten: passed around where she would be
+    np.testing.assert_allclose(pos, [[6.0, 0.5 - 0.05 * 8.1]])
+    np.testing.assert_allclose(vel, [[0.0, -0.05]])
+    assert sigma.shape == (1,)
+    assert len(_remembered(y, 20.0, car=(5.0, 0.0))[0]) == 1  # beside the car: kept
+    assert len(_remembered(y, 21.0, car=(8.6, 0.0))[0]) == 0  # R past her: released
+    # found again (a pedestrian within ``rematch`` of her prediction): her track is the camera's
+    y.reset()
+    step(0.0, np.array([[6.0, 0.5]]), np.zeros((1, 2)))
+    step(8.1, none, none)
+    assert len(_remembered(y, 9.0, peds=np.array([[6.5, 1.0]]))[0]) == 0
+    # walking off the road: released once R beyond its edge (2.1 m) the way she walks
+    y.reset()
+    step(0.0, np.array([[6.0, 0.5]]), np.array([[0.0, 0.2]]))  # slowly left: within R of the lane's line at 8 s
+    step(8.1, none, none)
+    assert len(_remembered(y, 20.0)[0]) == 1  # 0.5 + 0.2 * 20 = 4.5 < 2.1 + 2.5
+    assert len(_remembered(y, 20.6)[0]) == 0  # 4.62 >= 4.6
+
+
+def test_one_remembered_is_released_when_the_camera_looks_where_she_would_be_and_finds_nobody():
+    """Released by looking, not by a clock: with the camera's view known (``view_deg``), one the
+    car remembers is released once her predicted place has been whole in the image for
+    ``view_confirm`` s (the tracker's confirmation) with nobody found there; out of view (beside
+    the car, nearer than the image's lower edge reaches) she is kept."""
+    cfg = YieldConfig(view_deg=70.0, view_forward=1.5, view_near=4.3, view_confirm=2.0)
+    none = np.zeros((0, 2))
+
+    def run(ped, heading, times):
+        y = Yielder(cfg)
+        y.decide(np.zeros(2), 0.0, pedestrians=np.array([ped]), velocities=np.zeros((1, 2)), radii=np.array([3.5]),
+                 time=0.0, safety_radius=2.5, heading=heading, **ROAD)  # fmt: skip
+        out = []
+        for t in times:
+            d = y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0), time=t,
+                         safety_radius=2.5, heading=heading, **ROAD)  # fmt: skip
+            out.append(d is not None)
+        return out, y
+
+    # 10 m ahead on the lane, in the middle of the image: released after 2 s of looking
+    held, y = run((10.0, 0.0), 0.0, (0.5, 1.0, 2.4, 2.6))
+    assert held == [True, True, True, False] and not y.remembers and len(_remembered(y, 3.0)[0]) == 0
+    # the car stopped turned 35 deg away: she is 41 deg off the camera's axis (half its view 35), out of view
+    held, y = run((10.0, 0.0), math.radians(-35.0), (0.5, 2.6, 7.9, 8.1))
+    assert held == [True, True, True, False] and len(_remembered(y, 8.1, heading=math.radians(-35.0))[0]) == 1
+    # 3 m ahead: below the image's lower edge (her feet nearer than 4.3 m from the camera): kept
+    held, _ = run((4.0, 0.0), 0.0, (0.5, 2.6, 7.9))
+    assert held == [True, True, True]
+    # without the view the camera's looking releases no one
+    y = Yielder(YieldConfig())
+    y.decide(np.zeros(2), 0.0, pedestrians=np.array([[10.0, 0.0]]), velocities=np.zeros((1, 2)),
+             radii=np.array([3.5]), time=0.0, safety_radius=2.5, heading=0.0, **ROAD)  # fmt: skip
+    assert y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0), time=5.0,
+                    safety_radius=2.5, heading=0.0, **ROAD) is not None  # fmt: skip
+
+
+def test_the_yielding_view_refuses_an_angle_outside_its_range_by_name():
+    with pytest.raises(ValueError, match=r"yielding view_deg must be in \[0, 180\) degrees .* got 200"):
+        YieldConfig(view_deg=200.0)
+    with pytest.raises(ValueError, match="yielding view_confirm must be a finite number >= 0, got -1"):
+        YieldConfig(view_confirm=-1.0)
+
+
+def test_one_passed_around_is_where_her_last_sighting_says_not_where_her_coasted_track_drifted():
+    """A track coasted out of view loses her speed (its walking model fades) and grows uncertain:
+    given the sightings, one the car waited for is passed around where her last sighting, carried at
+    its velocity across the road, puts her, as uncertain as that sighting carried so far; and only a
+    pedestrian seen after that sighting finds her again (a track coasted near her prediction is no
+    sighting)."""
+    y = Yielder(YieldConfig())
+    none = np.zeros((0, 2))
+    # the input: her coasted track (standing, 3 m uncertain); the sighting 2 s before: sliding right at 0.1 m/s
+    sightings = (np.array([[6.0, 0.7, 0.0, -0.1]]), np.diag([0.04, 0.04, 0.01, 0.01])[None], np.array([-2.0]))
+    y.decide(np.zeros(2), 0.0, pedestrians=np.array([[6.0, 0.5]]), velocities=np.zeros((1, 2)),
+             radii=np.array([3.5]), covariances=np.diag([9.0, 9.0, 0.01, 0.01])[None], time=0.0, safety_radius=2.5,
+             heading=0.0, sightings=sightings, **ROAD)  # fmt: skip
+    assert y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0), time=8.1,
+                    safety_radius=2.5, heading=0.0, **ROAD) is None  # fmt: skip
+    pos, vel, sigma = _remembered(y, 10.0)
+    np.testing.assert_allclose(pos, [[6.0, 0.7 - 0.1 * 12.0]])  # her sighting, 12 s on
+    np.testing.assert_allclose(vel, [[0.0, -0.1]])
+    # her sighting's uncertainty, carried: her range's sigma (0.2 m) and her speed's across the road (0.1 m/s, 12 s)
+    np.testing.assert_allclose(sigma, [math.hypot(0.2, 0.1 * 12.0)])
+    # a track there, last seen before her sighting (coasted), does not find her; one seen since does
+    assert len(y.remembered(10.0, np.zeros(2), 0.0, ROAD["road_start"], ROAD["road_normal"], ROAD["room"], 2.5,
+                            np.array([[6.0, -0.3]]), np.array([-3.0]))[0]) == 1  # fmt: skip
+    assert len(y.remembered(10.1, np.zeros(2), 0.0, ROAD["road_start"], ROAD["road_normal"], ROAD["room"], 2.5,
+                            np.array([[6.0, -0.3]]), np.array([10.0]))[0]) == 0  # fmt: skip

@@ -295,6 +295,29 @@ class MpcController:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
         # the yielding layer may stop the car short of someone (with caution, also someone it remembers)
         held_stop = None
+        if self._yielder is not None and self.config.caution is not None:
+            # whom it waited for and did not find again: passed around where she would be, trusted
+            # least (unseen), her range's uncertainty as her margin (module yielding)
+            road = self._road
+            seen_at = None if last_seen is None else np.asarray(last_seen[2], dtype=float)
+            g_pos, g_vel, g_sigma = self._yielder.remembered(now, x[:2], float(x[2]), road.start, road.normal,
+                                                             road.room, self.config.safety_radius, peds,
+                                                             seen_at, _quantile(self.config.confidence))  # fmt: skip
+            if len(g_pos):
+                n0, m = len(peds), len(g_pos)
+                if last_seen is not None:  # their sightings: where they would be now, as of now
+                    ls_x, ls_p, ls_t = (np.asarray(a, dtype=float) for a in last_seen)
+                    g_cov = np.zeros((m, 4, 4))
+                    g_cov[:, 0, 0] = g_cov[:, 1, 1] = g_sigma**2
+                    last_seen = (np.vstack([ls_x, np.hstack([g_pos, g_vel])]), np.concatenate([ls_p, g_cov]),
+                                 np.append(ls_t, np.full(m, now)))  # fmt: skip
+                peds, vels, tr = np.vstack([peds, g_pos]), np.vstack([vels, g_vel]), np.append(tr, np.zeros(m))
+                margins = np.append(np.zeros(n0) if margins is None else margins,
+                                    _quantile(self.config.confidence) * g_sigma)  # fmt: skip
+                if covariances is not None:
+                    cv = np.asarray(covariances, dtype=float)
+                    covariances = np.concatenate([cv, np.zeros((m, *cv.shape[1:]))])
+                radii, bound = None, None  # made anew with them
         if self._yielder is not None and (len(peds) or (self.config.caution is not None and self._yielder.remembers)):
             road, lane = self._road, p.cost
             if radii is None:  # (else the route layer's, made this step from the same margins)
@@ -306,10 +329,11 @@ class MpcController:
                 cov = cv if (cv.ndim == 3 and cv.shape[1] == 4 if type(cv) is np.ndarray else
                              np.ndim(cv) == 3 and np.shape(cv)[1] == 4) else None  # fmt: skip
             held = (now, self.config.safety_radius, float(x[2])) if self.config.caution is not None else (None,) * 3
+            sightings = last_seen if self.config.caution is not None and last_seen is not None else None
             stop = self._yielder.decide(x[:2], float(x[3]), np.asarray(lane.start, dtype=float),
                                         np.asarray(lane.goal, dtype=float), road.start, road.normal, road.room,
                                         peds, vels, radii, cov, _quantile(self.config.confidence),
-                                        *held)  # fmt: skip
+                                        *held, sightings=sightings)  # fmt: skip
             if stop is not None:
                 held_stop = stop
                 ref = lane.reference

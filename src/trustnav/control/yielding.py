@@ -38,12 +38,33 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   across the road (along it, a frame's estimate is mostly the monocular range's drift), and blocks
   while that prediction is ahead of the car and within R of the lane's line or of the line the car
   heads along (the MPC, not knowing her, would drive the one, and a car stopped turned toward where
-  she walks drives the other first), for at most ``memory`` s. She is clear of a line only once R
+  she walks drives the other first). She is clear of a line only once R
   past it the way she walks: a crosser whose track is dropped before she reaches the lane (a slow
   one below the image) is still to cross it. A dropped track says that the camera
   no longer sees her, not that she has left the car's way. Her stop lies z sigma of her last
   position along the road further short (given ``covariances``): a track coasted out of view drifts
   along the line of sight, the monocular range.
+- **Released by evidence, never by a clock**: one it remembers is released when she is found
+  again (within ``rematch`` of her prediction, widened by z sigma of her range), when her
+  prediction is clear of the car's way or behind it (above), or when the camera looks where she
+  could be and finds nobody (given the camera's view, ``view_deg``: her predicted place and z
+  sigma of her range either way along the road, with half a metre either side for her body,
+  inside its horizontal view and between ``view_near`` and ``view_far`` ahead of it, for
+  ``view_confirm`` s: the frames its tracker needs to confirm a person). Negative information
+  counts only where the sensor looks (occlusion-aware planning's "unobserved is not empty"; e.g.
+  Orzechowski et al. 2018 prune a reachable set by the visible area, never by elapsed time).
+- **Passed around, not forgotten**: after ``memory`` s of waiting for one it remembers, the car
+  stops waiting for her to cross and passes around where she would be: she joins the MPC's
+  pedestrians (:meth:`Yielder.remembered`) where her last sighting puts her (given ``sightings``,
+  carried at her velocity across the road then: a track coasted out of view has lost her speed
+  and grown metres uncertain), trusted least (unseen), her margin z sigma of that sighting carried
+  (her range's and her speed's across the road times the time since), and is judged by the room
+  test as anyone seen, until one of the releases above, or her way leaves the
+  road (R beyond its edge). Before, the car forgot her after ``memory`` s: a texter it stopped
+  for, turned away by her barrier so that its one forward camera no longer saw her, was passed at
+  1.42 m (issue 34, varied Case II worlds at 1 frame/s). A car that cannot see her, and has no
+  room around where she would be, waits: with one forward camera that is the price of not
+  passing blind (docs/drive.md, "Varied worlds").
 - **Room behind a crosser beside others too** (with ``time`` and ``safety_radius``): for a crosser
   (lateral speed above ``crossing_speed``) the car's centre on a side of her must also be outside
   anyone else's region (their radius about their predicted place) within both radii of her along
@@ -81,12 +102,21 @@ from trustnav.control._validate import require_positive
 __all__ = ["YieldConfig", "YieldDecision", "Yielder"]
 
 _NO_COVARIANCES = np.zeros((0, 4, 4))
+_NONE_PASSING = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
 
 
 @dataclass(frozen=True)
 class YieldConfig:
     """Thresholds of :class:`Yielder` (module docstring); times in s, distances in m, speeds in
-    m/s, ``deceleration`` in m/s^2."""
+    m/s, ``deceleration`` in m/s^2. ``memory``: how long the car waits for one it remembers to
+    cross before it passes around where she would be. The camera's view, for releasing whom it
+    remembers when it looks where she would be: ``view_deg`` its horizontal field of view (0: not
+    known; then only seeing her, passing her or her prediction leaving the way release her),
+    ``view_forward`` its place ahead of the car's reference point, ``view_near`` / ``view_far``
+    the distances ahead of it between which a standing person is whole in the image and
+    detected, and ``view_confirm`` how long her place must have been in view, with nobody found
+    there, before she is released (the camera periods its tracker needs to confirm a person, and
+    the latencies: the caution's reaction time)."""
 
     lookahead: float = 4.0
     sample: float = 0.25
@@ -97,11 +127,43 @@ class YieldConfig:
     clear_time: float = 1.0
     rematch: float = 2.0
     memory: float = 8.0
+    view_deg: float = 0.0
+    view_forward: float = 0.0
+    view_near: float = 0.0
+    view_far: float = 30.0
+    view_confirm: float = 0.0
 
     def __post_init__(self) -> None:
         names = ("lookahead", "sample", "deceleration", "gap", "tolerance", "crossing_speed", "clear_time",
-                 "rematch", "memory")  # fmt: skip
-        require_positive("yielding", self, names)
+                 "rematch", "memory", "view_forward", "view_near", "view_far", "view_confirm")  # fmt: skip
+        require_positive("yielding", self, names, zero_ok=("view_forward", "view_near", "view_confirm"))
+        v = self.view_deg
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v < 180.0:
+            raise ValueError(f"yielding view_deg must be in [0, 180) degrees (0: the camera's view unknown), got {v!r}")
+
+
+@dataclass
+class _Remembered:
+    """One the yielding layer remembers: predicted at ``position + velocity (t - time)`` (her
+    velocity across the road), ``sigma`` m of her position along the road and ``speed_sigma`` m/s of
+    her speed across it, since when her place has been in the camera's view (``looked``; nan: it is
+    not), and her last sighting (``sighting``, the same fields, or None), from which she is passed
+    around once the wait is over."""
+
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    time: float
+    sigma: float
+    looked: float = math.nan
+    sighting: _Remembered | None = None
+    speed_sigma: float = 0.0
+
+    def at(self, time: float) -> NDArray[np.float64]:
+        return self.position + self.velocity * (float(time) - self.time)
+
+    def sigma_at(self, time: float) -> float:
+        """Her position's sigma ``time`` s on: her range's and her speed's across the road, carried."""
+        return math.hypot(self.sigma, self.speed_sigma * max(float(time) - self.time, 0.0))
 
 
 @dataclass(frozen=True)
@@ -123,11 +185,99 @@ class Yielder:
 
     def __init__(self, config: YieldConfig) -> None:
         self.config = config
-        # position, velocity across the road, time, and the sigma of the position along the road
-        self._memory: tuple[NDArray[np.float64], NDArray[np.float64], float, float] | None = None
+        self._memory: _Remembered | None = None  # the one it waits for, no longer among its inputs
+        # those it waited for ``memory`` s without finding them again: passed around where they would be
+        self._passing: list[_Remembered] = []
 
     def reset(self) -> None:
         self._memory = None
+        self._passing = []
+
+    def _looked(self, item: _Remembered, pred: NDArray[np.float64], position: NDArray[np.float64],
+                heading: float | None, time: float, axis: NDArray[np.float64], reach: float) -> bool:  # fmt: skip
+        """Whether the camera has looked where a remembered pedestrian could be for ``view_confirm``
+        s and found nobody there (the caller has checked that no one is within ``rematch``): her
+        prediction ``pred`` and ``reach`` m either way along the road ``axis`` (z sigma of her
+        range, the error of a place estimated by a monocular camera), each with her body's half
+        width, inside the image; keeps in ``item`` since when it looks (module docstring)."""
+        c = self.config
+        if c.view_deg <= 0.0 or heading is None:
+            return False
+        u = np.array([math.cos(heading), math.sin(heading)])
+        cam = position + c.view_forward * u
+        in_view = True
+        for p in (pred - reach * axis, pred, pred + reach * axis):
+            rel = p - cam
+            ahead = float(rel @ u)
+            dist = float(np.hypot(*rel))
+            bearing = abs(math.atan2(float(u[0] * rel[1] - u[1] * rel[0]), ahead))
+            # her whole body (half a metre either side of her place) inside the image, at a distance it detects
+            in_view = in_view and (
+                c.view_near <= ahead
+                and dist <= c.view_far
+                and (bearing + math.atan2(0.5, dist) <= math.radians(0.5 * c.view_deg))
+            )
+        if not in_view:
+            item.looked = math.nan
+            return False
+        if math.isnan(item.looked):
+            item.looked = float(time)
+        return float(time) - item.looked >= c.view_confirm
+
+    def remembered(
+        self,
+        time: float,
+        position: NDArray[np.float64],
+        heading: float,
+        road_start: NDArray[np.float64],
+        road_normal: NDArray[np.float64],
+        room: tuple[float, float],
+        safety_radius: float,
+        pedestrians: NDArray[np.float64],
+        seen_times: NDArray[np.float64] | None = None,
+        z: float = 1.645,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Those it waited for ``memory`` s without finding them again, to be passed around where
+        they would be (module docstring, "Passed around, not forgotten"), at ``time``: positions
+        (M, 2), velocities (M, 2) and the sigma (M,) of each position (her range's and her speed's
+        across the road, carried). One is released
+        once the car's ``position`` is ``safety_radius`` past her along the road, her prediction
+        is ``safety_radius`` beyond the road's edge the way she walks (``room``: the car centre's
+        (left, right) from the road's line through ``road_start``), one of the step's
+        ``pedestrians`` (N, 2) is within ``rematch`` of her (and, given their ``seen_times`` (N,),
+        was seen after her: a track coasted there is no sighting), or the camera (the car's
+        ``heading``, rad) has looked where she could be (z sigma of her range either way) for
+        ``view_confirm`` s."""
+        if not self._passing:
+            return _NONE_PASSING
+        axis = np.array([road_normal[1], -road_normal[0]])
+        seen = np.asarray(pedestrians, dtype=float).reshape(-1, 2)
+        keep, out = [], []
+        r = float(safety_radius)
+        found = None if seen_times is None else np.asarray(seen_times, dtype=float).reshape(-1)
+        for item in self._passing:
+            vel, t0, sigma = item.velocity, item.time, item.sigma
+            pred = item.at(time)
+            d = float((pred - road_start) @ road_normal)
+            off_road = _past(d - room[0], float(vel @ road_normal), r) if d > 0 else _past(
+                d + room[1], float(vel @ road_normal), r)  # fmt: skip
+            if float((pred - position) @ axis) < -r or off_road:
+                continue
+            gate = self.config.rematch + z * sigma  # her range's error widens where she may be found
+            near = np.hypot(*(seen - pred).T) <= gate if len(seen) else np.zeros(0, dtype=bool)
+            if found is not None and len(found) == len(near):
+                near &= found > t0
+            if near.any():
+                continue  # found again: her track is the camera's
+            if self._looked(item, pred, position, heading, time, axis, z * sigma):
+                continue
+            keep.append(item)
+            out.append((pred, vel, item.sigma_at(time)))
+        self._passing = keep
+        if not out:
+            return _NONE_PASSING
+        return (np.array([o[0] for o in out]), np.array([o[1] for o in out]),
+                np.array([o[2] for o in out], dtype=float))  # fmt: skip
 
     @property
     def remembers(self) -> bool:
@@ -151,6 +301,7 @@ class Yielder:
         time: float | None = None,
         safety_radius: float | None = None,
         heading: float | None = None,
+        sightings: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
     ) -> YieldDecision | None:
         """The stop for the nearest pedestrian the car must yield to, or None (drive on).
 
@@ -161,7 +312,9 @@ class Yielder:
         v_y) (None: the velocities are taken as exact) and ``z`` the quantile of its velocity;
         ``time`` (s) and ``safety_radius`` (R): remember whom the car waits for (None: stateless);
         ``heading`` (rad) of the car: one it remembers also blocks within R of the line it heads
-        along (None: the lane's direction)."""
+        along (None: the lane's direction); ``sightings``: each pedestrian's state (N, 4),
+        covariance (N, 4, 4) and time (N,) when the camera last saw her, from which one it waited
+        for is passed around after ``memory`` s (None: from her last input)."""
         if not len(pedestrians) and self._memory is None:
             return None  # nobody seen, nobody remembered: nothing to yield to (and nothing to remember)
         c = self.config
@@ -176,21 +329,29 @@ class Yielder:
         extra = np.zeros(1)  # how much further short of her the stop lies (one remembered: her range error)
         held = -1  # the pedestrian it yielded to at the last step, still seen (index into this step's)
         if remember and self._memory is not None:  # she vanished from the inputs? keep her prediction
-            pos, vel, t0, along_sigma = self._memory
-            pred = pos + vel * (float(time) - t0)
+            item = self._memory
+            vel, t0, along_sigma = item.velocity, item.time, item.sigma
+            pred = item.at(time)
             near = float(safety_radius)
             # clear of a line once R past it the way she walks (one still walking toward it is not)
             off_lane = _past(float((pred - road_start) @ road_normal) - d_lane, float(vel @ road_normal), near)
             rel = pred - position
             off_heading = _past(float(ahead[0] * rel[1] - ahead[1] * rel[0]),
                                 float(ahead[0] * vel[1] - ahead[1] * vel[0]), near)  # fmt: skip
-            gone = ((off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
-                    or float(time) - t0 > c.memory)  # fmt: skip
+            gone = (off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
             dist = np.hypot(*(np.asarray(pedestrians, dtype=float).reshape(-1, 2) - pred).T) if n_real else None
-            seen = dist is not None and float(dist.min()) <= c.rematch
-            if seen and not float(time) - t0 > c.memory:
+            # found within ``rematch`` of her prediction, widened by z sigma of her range (her remembered
+            # place is a monocular estimate: a track's next placement jumped 2.2 m along the line of sight)
+            seen = dist is not None and float(dist.min()) <= c.rematch + float(z) * along_sigma
+            waited = float(time) - t0 > c.memory
+            if seen and not waited:
                 held = int(dist.argmin())  # still seen: released only once clear of the line it heads along
-            if gone or seen:
+            if not (gone or seen):  # the camera looked where she would be and found nobody: gone
+                gone = self._looked(item, pred, position, heading, float(time), axis, float(z) * along_sigma)
+            if gone or seen or waited:
+                if not (gone or seen):  # waited for long enough, not found: passed around, not forgotten,
+                    # where her last sighting says she would be (a track coasted out of view has lost her speed)
+                    self._passing.append(item.sighting or item)
                 self._memory = None
             else:
                 pedestrians = np.vstack([np.asarray(pedestrians, dtype=float).reshape(-1, 2), pred])
@@ -220,7 +381,16 @@ class Yielder:
             # and her position's uncertainty along the road (the monocular range's), which sets how far
             # short of her remembered place the car stops
             along_sigma = 0.0 if not cov.shape[0] else math.sqrt(max(float(axis @ cov[j, :2, :2] @ axis), 0.0))
-            self._memory = (np.array(pedestrians[j], dtype=float), across, float(time), along_sigma)
+            sighting = None
+            if sightings is not None:  # where the camera last saw her, carried at her velocity then
+                x_s, p_s, t_s = sightings
+                v_s = float(np.asarray(x_s[j][2:4], dtype=float) @ road_normal) * np.asarray(road_normal, dtype=float)
+                p_j = np.asarray(p_s[j], dtype=float)
+                sig_s = math.sqrt(max(float(axis @ p_j[:2, :2] @ axis), 0.0))
+                sig_v = math.sqrt(max(float(road_normal @ p_j[2:4, 2:4] @ road_normal), 0.0))
+                sighting = _Remembered(np.array(x_s[j][:2], dtype=float), v_s, float(t_s[j]), sig_s, speed_sigma=sig_v)
+            self._memory = _Remembered(np.array(pedestrians[j], dtype=float), across, float(time), along_sigma,
+                                       sighting=sighting)  # fmt: skip
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None

@@ -645,7 +645,7 @@ def drive(
     sc = environment.scenario
     if max_frames is not None:
         environment.max_frames = max_frames
-    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency)
+    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency, sc.camera)
     model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
     policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road, sc.vehicle))
 

@@ -28,6 +28,7 @@ from trustnav.control import (
     LaneTrackingCost,
     MpcConfig,
     RoadEdgeBarrier,
+    YieldConfig,
     reaction_time,
 )
 from trustnav.geometry.camera import CameraSpec
@@ -133,6 +134,17 @@ class VehicleSpec:
         )
 
 
+def camera_view(camera: CameraSpec) -> dict[str, float]:
+    """The yielding layer's view of ``camera`` (:class:`~trustnav.control.YieldConfig`): its
+    horizontal field of view, its place ahead of the car, and the nearest distance ahead at which a
+    person standing on the ground is whole in its image (the feet inside the lower edge)."""
+    lower = math.radians(0.5 * camera.vfov_deg + camera.pitch_deg)  # the lower edge below the horizon
+    if lower <= 1e-6:  # looking up: no one's feet in the image (the view is not used)
+        return {"view_deg": 0.0}
+    near = camera.up / math.tan(lower) if lower < 0.5 * math.pi - 1e-6 else 0.0
+    return {"view_deg": float(camera.fov_deg), "view_forward": float(camera.forward), "view_near": float(near)}
+
+
 @dataclass(frozen=True)
 class ControlSpec:
     """Controller: rate (Hz), MPC step dt and horizon N_h, margin R, gamma(trust) of `weight`,
@@ -207,12 +219,19 @@ class ControlSpec:
             occlusion=self.caution_occlusion,
         )
 
-    def config(self, camera_rate: float = 1.0, perception_latency: float = 0.0) -> MpcConfig:
+    def config(
+        self, camera_rate: float = 1.0, perception_latency: float = 0.0, camera: CameraSpec | None = None
+    ) -> MpcConfig:
         """The controller's configuration for a camera at ``camera_rate`` frames/s (it sets the
-        caution's reaction time)."""
+        caution's reaction time); with caution, ``camera`` tells the yielding layer what the camera
+        sees, so that one it remembers is released when it looks where she would be
+        (:class:`~trustnav.control.YieldConfig`; None: not known)."""
         extra = {"deadline": self.deadline} if "deadline" in MpcConfig.__dataclass_fields__ else {}
+        caution = self.caution_config(camera_rate, perception_latency)
+        if caution is not None and camera is not None:
+            extra["yielding"] = YieldConfig(**camera_view(camera), view_confirm=caution.reaction)
         return MpcConfig(
-            caution=self.caution_config(camera_rate, perception_latency),
+            caution=caution,
             confidence=self.confidence,
             horizon=self.horizon,
             dt=self.dt,
