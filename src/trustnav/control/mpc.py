@@ -295,9 +295,9 @@ class MpcController:
                 p.cost = replace(tracked, goal=(float(waypoint[0]), float(waypoint[1])))
         # the yielding layer may stop the car short of someone (with caution, also someone it remembers)
         held_stop = None
-        if self._yielder is not None and self.config.caution is not None:
+        if self._yielder is not None and self.config.caution is not None and self._yielder.passing:
             # whom it waited for and did not find again: passed around where she would be, trusted
-            # least (unseen), her range's uncertainty as her margin (module yielding)
+            # least (unseen), her sighting's uncertainty carried as her margin (module yielding)
             road = self._road
             seen_at = None if last_seen is None else np.asarray(last_seen[2], dtype=float)
             g_pos, g_vel, g_sigma = self._yielder.remembered(now, x[:2], float(x[2]), road.start, road.normal,

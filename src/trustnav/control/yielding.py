@@ -263,8 +263,7 @@ class Yielder:
                 d + room[1], float(vel @ road_normal), r)  # fmt: skip
             if float((pred - position) @ axis) < -r or off_road:
                 continue
-            gate = self.config.rematch + z * sigma  # her range's error widens where she may be found
-            near = np.hypot(*(seen - pred).T) <= gate if len(seen) else np.zeros(0, dtype=bool)
+            near = np.hypot(*(seen - pred).T) <= self._gate(sigma, z) if len(seen) else np.zeros(0, dtype=bool)
             if found is not None and len(found) == len(near):
                 near &= found > t0
             if near.any():
@@ -278,6 +277,16 @@ class Yielder:
             return _NONE_PASSING
         return (np.array([o[0] for o in out]), np.array([o[1] for o in out]),
                 np.array([o[2] for o in out], dtype=float))  # fmt: skip
+
+    def _gate(self, sigma: float, z: float) -> float:
+        """How near her prediction someone must be to be her, found again: ``rematch``, widened by z
+        sigma of her range (a monocular placement jumps metres along the line of sight)."""
+        return self.config.rematch + float(z) * sigma
+
+    @property
+    def passing(self) -> bool:
+        """Whether it holds someone it waited for and now passes around (:meth:`remembered`)."""
+        return bool(self._passing)
 
     @property
     def remembers(self) -> bool:
@@ -340,9 +349,8 @@ class Yielder:
                                 float(ahead[0] * vel[1] - ahead[1] * vel[0]), near)  # fmt: skip
             gone = (off_lane and off_heading) or float((pred - road_start) @ axis) <= s_car
             dist = np.hypot(*(np.asarray(pedestrians, dtype=float).reshape(-1, 2) - pred).T) if n_real else None
-            # found within ``rematch`` of her prediction, widened by z sigma of her range (her remembered
-            # place is a monocular estimate: a track's next placement jumped 2.2 m along the line of sight)
-            seen = dist is not None and float(dist.min()) <= c.rematch + float(z) * along_sigma
+            # found again near her prediction (a monocular place: a track's next placement jumped 2.2 m)
+            seen = dist is not None and float(dist.min()) <= self._gate(along_sigma, z)
             waited = float(time) - t0 > c.memory
             if seen and not waited:
                 held = int(dist.argmin())  # still seen: released only once clear of the line it heads along
@@ -380,14 +388,13 @@ class Yielder:
             across = float(np.asarray(velocities[j], dtype=float) @ road_normal) * np.asarray(road_normal, dtype=float)
             # and her position's uncertainty along the road (the monocular range's), which sets how far
             # short of her remembered place the car stops
-            along_sigma = 0.0 if not cov.shape[0] else math.sqrt(max(float(axis @ cov[j, :2, :2] @ axis), 0.0))
+            along_sigma = 0.0 if not cov.shape[0] else _spread(cov[j, :2, :2], axis)
             sighting = None
             if sightings is not None:  # where the camera last saw her, carried at her velocity then
                 x_s, p_s, t_s = sightings
                 v_s = float(np.asarray(x_s[j][2:4], dtype=float) @ road_normal) * np.asarray(road_normal, dtype=float)
                 p_j = np.asarray(p_s[j], dtype=float)
-                sig_s = math.sqrt(max(float(axis @ p_j[:2, :2] @ axis), 0.0))
-                sig_v = math.sqrt(max(float(road_normal @ p_j[2:4, 2:4] @ road_normal), 0.0))
+                sig_s, sig_v = _spread(p_j[:2, :2], axis), _spread(p_j[2:4, 2:4], road_normal)
                 sighting = _Remembered(np.array(x_s[j][:2], dtype=float), v_s, float(t_s[j]), sig_s, speed_sigma=sig_v)
             self._memory = _Remembered(np.array(pedestrians[j], dtype=float), across, float(time), along_sigma,
                                        sighting=sighting)  # fmt: skip
@@ -413,6 +420,11 @@ class Yielder:
         else:
             note = f"yielding: waiting for {who}"
         return YieldDecision(stop, cap, j, note)
+
+
+def _spread(cov: NDArray[np.float64], direction: NDArray[np.float64]) -> float:
+    """The sigma of a 2 x 2 covariance ``cov`` along the unit ``direction``."""
+    return math.sqrt(max(float(direction @ cov @ direction), 0.0))
 
 
 def _past(offset: float, speed: float, near: float) -> bool:
