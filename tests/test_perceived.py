@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from trustnav.control import KinematicBicycle, LaneTrackingCost, MpcConfig, MpcController
 from trustnav.control.barrier import uncertainty_margins
 from trustnav.geometry import CameraPose, CameraSpec
-from trustnav.perception.localisation import GroundEstimate, GroundLocaliser, LocaliserConfig
+from trustnav.perception.localisation import GroundEstimate, GroundLocaliser, LocaliserConfig, cut_by_image
 from trustnav.perception.types import Person
 from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
 from trustnav.sim.driving.episode import DriveEnvironment, run_drive
@@ -71,7 +71,7 @@ def test_rays_above_the_horizon_meet_no_ground_and_k_matrix_round_trips():
 
 #: The localiser's model of the keypoint sensor's people (no pixel offset of the detector, the pixels'
 #: noise drawn at the model's scale): ``SensingSpec.localiser(keypoints=True)``.
-KEYPOINT_MODEL = {"pixel_bias": False, "noise_prior_dof": math.inf}
+KEYPOINT_MODEL = {"pixel_bias": False, "noise_prior_dof": math.inf, "cut_range_share": 0.0, "cut_body_sigma": 0.0}
 
 
 def _person_at(sc, camera, index, seed=0, **sensing):
@@ -116,6 +116,46 @@ def test_localisation_on_a_kerb_uses_the_map_and_refuses_what_it_cannot_place():
     assert loc.locate(few, cam) is None  # a face alone cannot be placed on the ground
     with pytest.raises(ValueError, match="pitch_sigma_deg"):
         LocaliserConfig(pitch_sigma_deg=-1.0)
+
+
+def test_a_body_the_image_cuts_is_placed_from_what_is_in_it_and_its_range_believed_less():
+    sc = load_drive_scenario("case-1")
+    cam = sc.camera.pose([33.5, 111.0], -math.pi / 2)
+    person = _person_at(sc, cam, 0)
+    loc = GroundLocaliser(LocaliserConfig(**KEYPOINT_MODEL))
+    # a landmark model's ankles below the image are its guess, not a measurement: not used
+    kp, conf = person.keypoints.copy(), person.confidences.copy()
+    kp[15:17, 1] = cam.spec.height + 40.0
+    conf[15:17] = 0.9
+    guessed = loc.locate(Person(person.bbox, kp, conf, 0.9), cam)
+    unseen = loc.locate(Person(person.bbox, kp, np.where(np.arange(17) >= 15, 0.0, conf), 0.9), cam)
+    np.testing.assert_allclose(guessed.position, unseen.position)
+    np.testing.assert_allclose(guessed.covariance, unseen.covariance)
+    # a body whose box the image's edge cuts: its range's sigma widened by a share of its distance,
+    # its bearing's kept
+    cut_box = person.bbox.copy()
+    cut_box[0] = 0.0
+    cut = Person(cut_box, person.keypoints, person.confidences, 0.9)
+    assert cut_by_image(cut_box, cam.spec.width, cam.spec.height)
+    assert not cut_by_image(person.bbox, cam.spec.width, cam.spec.height)
+    scaled = GroundLocaliser(LocaliserConfig(**{**KEYPOINT_MODEL, "cut_range_share": 0.2}))
+    along = (person_xy := np.array(sc.pedestrians[0].position)) - cam.position[:2]
+    along /= np.hypot(*along)
+    across = np.array([-along[1], along[0]])
+    plain, wide = loc.locate(cut, cam), scaled.locate(cut, cam)
+    dist = np.hypot(*(wide.position - cam.position[:2]))
+    widened = along @ plain.covariance @ along + (0.2 * dist) ** 2
+    assert along @ wide.covariance @ along == pytest.approx(widened, rel=0.02)
+    assert across @ wide.covariance @ across == pytest.approx(across @ plain.covariance @ across, rel=0.02)
+    body = GroundLocaliser(LocaliserConfig(**{**KEYPOINT_MODEL, "cut_body_sigma": 0.05})).locate(cut, cam)
+    np.testing.assert_allclose(body.covariance, plain.covariance + 0.05**2 * np.eye(2))
+    whole = scaled.locate(person, cam)  # a body whole in the image: as before
+    np.testing.assert_allclose(whole.covariance, loc.locate(person, cam).covariance)
+    assert np.hypot(*(whole.position - person_xy)) < 0.5
+    with pytest.raises(ValueError, match="cut_range_share"):
+        LocaliserConfig(cut_range_share=-0.1)
+    with pytest.raises(ValueError, match="cut_body_sigma"):
+        LocaliserConfig(cut_body_sigma=float("nan"))
 
 
 def test_the_feet_bias_of_a_pose_is_an_unknown_of_the_body_not_noise_of_each_ankle():

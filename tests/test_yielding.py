@@ -307,6 +307,28 @@ def test_one_remembered_is_released_when_the_camera_looks_where_she_would_be_and
                     safety_radius=2.5, heading=0.0, **ROAD) is not None  # fmt: skip
 
 
+def test_looking_for_her_covers_where_her_uncertain_speed_across_the_road_may_have_taken_her():
+    """Her prediction walks at her estimated speed across the road; a speed estimated from a frame or
+    two is uncertain, so where she could be spreads across the road with time (z sigma of that
+    speed times the time since). The camera must see all of that, not only her mean, before she is
+    released by looking: a region that has spread beyond the image keeps her."""
+    cfg = YieldConfig(view_deg=70.0, view_forward=1.5, view_near=4.3, view_confirm=2.0)
+    none = np.zeros((0, 2))
+
+    def held(speed_sigma):
+        y = Yielder(cfg)
+        cov = np.diag([0.01, 0.01, 0.01, speed_sigma**2])[None]  # (x, y, v_x, v_y); the road along x
+        y.decide(np.zeros(2), 0.0, pedestrians=np.array([[10.0, 0.0]]), velocities=np.zeros((1, 2)),
+                 radii=np.array([3.5]), covariances=cov, time=0.0, safety_radius=2.5, heading=0.0, **ROAD)  # fmt: skip
+        return [y.decide(np.zeros(2), 0.0, pedestrians=none, velocities=none, radii=np.zeros(0),
+                         covariances=np.zeros((0, 4, 4)), time=t, safety_radius=2.5, heading=0.0, **ROAD) is not None
+                for t in (0.5, 2.6, 4.0)]  # fmt: skip
+
+    assert held(0.05) == [True, False, False]  # a speed known well: her place stays in view, released
+    # 1.5 m/s of doubt: by 2.6 s she may be 6.4 m to either side, beyond the image's edge (5.95 m there)
+    assert held(1.5) == [True, True, True]
+
+
 def test_the_yielding_view_refuses_an_angle_outside_its_range_by_name():
     with pytest.raises(ValueError, match=r"yielding view_deg must be in \[0, 180\) degrees .* got 200"):
         YieldConfig(view_deg=200.0)

@@ -47,10 +47,12 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
 - **Released by evidence, never by a clock**: one it remembers is released when she is found
   again (within ``rematch`` of her prediction, widened by z sigma of her range), when her
   prediction is clear of the car's way or behind it (above), or when the camera looks where she
-  could be and finds nobody (given the camera's view, ``view_deg``: her predicted place and z
-  sigma of her range either way along the road, with half a metre either side for her body,
-  inside its horizontal view and between ``view_near`` and ``view_far`` ahead of it, for
-  ``view_confirm`` s: the frames its tracker needs to confirm a person). Negative information
+  could be and finds nobody (given the camera's view, ``view_deg``: her predicted place, z sigma
+  of her range either way along the road and z sigma of her speed across it times the time since
+  either way across it, with half a metre either side for her body, inside its horizontal view
+  and between ``view_near`` and ``view_far`` ahead of it, for ``view_confirm`` s: the frames its
+  tracker needs to confirm a person; a prediction walks at a speed estimated from a frame or two,
+  and she may be where a slower or faster walk took her). Negative information
   counts only where the sensor looks (occlusion-aware planning's "unobserved is not empty"; e.g.
   Orzechowski et al. 2018 prune a reachable set by the visible area, never by elapsed time).
 - **Passed around, not forgotten**: after ``memory`` s of waiting for one it remembers, the car
@@ -161,9 +163,14 @@ class _Remembered:
     def at(self, time: float) -> NDArray[np.float64]:
         return self.position + self.velocity * (float(time) - self.time)
 
+    def drift(self, time: float) -> float:
+        """The sigma of how far across the road she may be from her prediction at ``time``: her speed's
+        across it, carried since."""
+        return self.speed_sigma * max(float(time) - self.time, 0.0)
+
     def sigma_at(self, time: float) -> float:
         """Her position's sigma ``time`` s on: her range's and her speed's across the road, carried."""
-        return math.hypot(self.sigma, self.speed_sigma * max(float(time) - self.time, 0.0))
+        return math.hypot(self.sigma, self.drift(time))
 
 
 @dataclass(frozen=True)
@@ -194,19 +201,24 @@ class Yielder:
         self._passing = []
 
     def _looked(self, item: _Remembered, pred: NDArray[np.float64], position: NDArray[np.float64],
-                heading: float | None, time: float, axis: NDArray[np.float64], reach: float) -> bool:  # fmt: skip
+                heading: float | None, time: float, axis: NDArray[np.float64], reach: float,
+                across: float = 0.0) -> bool:  # fmt: skip
         """Whether the camera has looked where a remembered pedestrian could be for ``view_confirm``
         s and found nobody there (the caller has checked that no one is within ``rematch``): her
-        prediction ``pred`` and ``reach`` m either way along the road ``axis`` (z sigma of her
-        range, the error of a place estimated by a monocular camera), each with her body's half
-        width, inside the image; keeps in ``item`` since when it looks (module docstring)."""
+        prediction ``pred``, ``reach`` m either way along the road ``axis`` (z sigma of her range,
+        the error of a place estimated by a monocular camera) and ``across`` m either way across it
+        (z sigma of her speed across the road times the time since it was estimated), each corner
+        with her body's half width, inside the image; keeps in ``item`` since when it looks (module
+        docstring)."""
         c = self.config
         if c.view_deg <= 0.0 or heading is None:
             return False
         u = np.array([math.cos(heading), math.sin(heading)])
         cam = position + c.view_forward * u
+        normal = np.array([-axis[1], axis[0]])
         in_view = True
-        for p in (pred - reach * axis, pred, pred + reach * axis):
+        # the region is a rectangle and the view convex: its corners and centre in view, it is
+        for p in [pred] + [pred + a * reach * axis + b * across * normal for a in (-1, 1) for b in (-1, 1)]:
             rel = p - cam
             ahead = float(rel @ u)
             dist = float(np.hypot(*rel))
@@ -268,7 +280,7 @@ class Yielder:
                 near &= found > t0
             if near.any():
                 continue  # found again: her track is the camera's
-            if self._looked(item, pred, position, heading, time, axis, z * sigma):
+            if self._looked(item, pred, position, heading, time, axis, z * sigma, z * item.drift(time)):
                 continue
             keep.append(item)
             out.append((pred, vel, item.sigma_at(time)))
@@ -354,8 +366,9 @@ class Yielder:
             waited = float(time) - t0 > c.memory
             if seen and not waited:
                 held = int(dist.argmin())  # still seen: released only once clear of the line it heads along
-            if not (gone or seen):  # the camera looked where she would be and found nobody: gone
-                gone = self._looked(item, pred, position, heading, float(time), axis, float(z) * along_sigma)
+            if not (gone or seen):  # the camera looked where she could be and found nobody: gone
+                gone = self._looked(item, pred, position, heading, float(time), axis, float(z) * along_sigma,
+                                    float(z) * item.drift(float(time)))  # fmt: skip
             if gone or seen or waited:
                 if not (gone or seen):  # waited for long enough, not found: passed around, not forgotten,
                     # where her last sighting says she would be (a track coasted out of view has lost her speed)
@@ -396,8 +409,10 @@ class Yielder:
                 p_j = np.asarray(p_s[j], dtype=float)
                 sig_s, sig_v = _spread(p_j[:2, :2], axis), _spread(p_j[2:4, 2:4], road_normal)
                 sighting = _Remembered(np.array(x_s[j][:2], dtype=float), v_s, float(t_s[j]), sig_s, speed_sigma=sig_v)
+            # and her speed's across the road: where she may have walked to, for looking where she could be
+            speed_sigma = 0.0 if not cov.shape[0] else _spread(cov[j, 2:4, 2:4], road_normal)
             self._memory = _Remembered(np.array(pedestrians[j], dtype=float), across, float(time), along_sigma,
-                                       sighting=sighting)  # fmt: skip
+                                       sighting=sighting, speed_sigma=speed_sigma)  # fmt: skip
         best = None if j < 0 else (stop_s, j)
         if best is None:
             return None

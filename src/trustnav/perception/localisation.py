@@ -61,6 +61,7 @@ __all__ = [
     "GroundLocaliser",
     "LocaliserConfig",
     "chi2_90",
+    "cut_by_image",
     "pose_change",
 ]
 
@@ -120,6 +121,14 @@ class LocaliserConfig:
     (``lateral_sigma`` 0.01, ``body_sigma`` 0.005) it calibrates the rendered bearing; the drive's
     rendered sensing uses the three with the tracker's range scale, without which the standers
     looked like walkers to the tracker (docs/perceived.md, twelfth and thirteenth passes);
+    cut_range_share: the range's sigma, as a share of the distance, added along the line of sight
+    for a person whose box the image's edge cuts (beside the camera, or so near that the feet fall
+    below the image): the landmark model sees the body in part, in a region the border crops, and
+    guesses at the rest (BlazePose placed rendered people cut by the lower edge up to 90 % of
+    their range too far with a sigma of 1-2 %); cut_body_sigma: for such a person, where her
+    body's centre is (m, isotropic, added as ``body_sigma``: the part of her the image shows is not
+    centred on her); both measured by ``benchmarks/cut_bodies.py``, and 0 for a sensor whose
+    joints the cut does not move (keypoint sensing). Joints outside the image are never used;
     min_confidence: keypoints below it are not used; max_distance: estimates farther than this
     (m) are refused (a person on the horizon)."""
 
@@ -134,6 +143,8 @@ class LocaliserConfig:
     pixel_bias: bool = True
     noise_prior_dof: float = 4.0
     separate_scales: bool = False
+    cut_range_share: float = 0.12
+    cut_body_sigma: float = 0.05
     min_confidence: float = 0.3
     max_distance: float = 80.0
 
@@ -148,6 +159,8 @@ class LocaliserConfig:
             ("body_sigma", self.body_sigma, 0.0, 2.0),
             ("foot_sigma", self.foot_sigma, 0.0, 0.2),
             ("noise_prior_dof", self.noise_prior_dof, 0.0, math.inf),
+            ("cut_range_share", self.cut_range_share, 0.0, 2.0),
+            ("cut_body_sigma", self.cut_body_sigma, 0.0, 2.0),
             ("min_confidence", self.min_confidence, 0.0, 1.0),
             ("max_distance", self.max_distance, 1.0, 1e4),
         )
@@ -232,6 +245,12 @@ def _shape(person: Person, size_px: float, min_confidence: float) -> NDArray[np.
     return out
 
 
+def cut_by_image(box: NDArray[np.float64], width: int, height: int) -> bool:
+    """Whether a person's ``box`` (x1, y1, x2, y2, pixels) touches the edge of an image ``width`` x
+    ``height`` (within its last pixel): the body is cut, seen in part (``LocaliserConfig.cut_range_share``)."""
+    return bool(box[0] <= 1.0 or box[1] <= 1.0 or box[2] >= width - 2.0 or box[3] >= height - 2.0)
+
+
 def _flat(_: NDArray[np.float64]) -> float:
     return 0.0
 
@@ -246,13 +265,22 @@ class GroundLocaliser:
         self._offset = np.array([DETECTOR_PIXEL_BIAS[p[0]][1] if biased else 0.0 for p in BODY_POINTS])
         self._ratio_sigma = np.array([p[3] for p in BODY_POINTS])
 
-    def _observations(self, person: Person) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    def _observations(
+        self, person: Person, image: tuple[int, int] | None = None
+    ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         """The pixels the fit uses: per body point seen, the u of its centre (a pair's midpoint)
         and, per joint, its v; with each one's body ratio, and standard deviations (px, before
         scaling by the person's size) and confidence weights. Returns (obs, ratio, sigma_rel, weight)
-        where the first ``n_u`` entries are u's (see :meth:`locate`)."""
+        where the first ``n_u`` entries are u's (see :meth:`locate`). ``image``: (width, height); a
+        joint outside it is not seen (a landmark model guesses where a body cut by the image's edge
+        goes on: rendered people whose ankles lay below the image were placed with an error of 3
+        sigma)."""
         cfg = self.config
         kp, conf = person.keypoints, person.confidences
+        if image is not None:
+            out = ~((kp[:, 0] >= 0.0) & (kp[:, 0] < image[0]) & (kp[:, 1] >= 0.0) & (kp[:, 1] < image[1]))
+            if out.any():
+                conf = np.where(out, 0.0, conf)
         u_obs, u_ratio, u_sig, u_w, u_foot = [], [], [], [], []
         v_obs, v_ratio, v_sig, v_w, v_foot = [], [], [], [], []
         for i, (_, joints, _r, _s) in enumerate(BODY_POINTS):
@@ -294,7 +322,7 @@ class GroundLocaliser:
         iteratively reweighted least squares (Cauchy, scale 2.5 sigma)."""
         cfg = self.config
         ground = ground_height or _flat
-        obs, ratio, sig_rel, conf_w = self._observations(person)
+        obs, ratio, sig_rel, conf_w = self._observations(person, (camera.spec.width, camera.spec.height))
         n_u = self._n_u
         v_ratio, v_obs = ratio[n_u:], obs[n_u:]
         if n_u < 2 or v_ratio.size < 2 or np.ptp(v_ratio) < 0.2:
@@ -375,6 +403,11 @@ class GroundLocaliser:
         if not (np.all(np.isfinite(cov)) and ahead > 0.3 and dist <= cfg.max_distance):
             return None
         c2 = 0.5 * (cov[:2, :2] + cov[:2, :2].T) + cfg.body_sigma**2 * np.eye(2)
+        if cut_by_image(person.bbox, camera.spec.width, camera.spec.height):
+            # seen in part, the rest guessed by the landmark model: her range known to a share of
+            # itself, and where her body's centre is to a few centimetres
+            los = (pos - camera.position[:2]) / max(dist, 1e-9)
+            c2 = c2 + (cfg.cut_range_share * dist) ** 2 * np.outer(los, los) + cfg.cut_body_sigma**2 * np.eye(2)
         shape = _shape(person, size_px, cfg.min_confidence)
         return GroundEstimate(pos, c2, dist, float(theta[2]), float(theta[3]), n_u, fit, shape)
 

@@ -407,15 +407,17 @@ class SensingSpec:
     def localiser(self, keypoints: bool = False) -> LocaliserConfig:
         """The ground-plane localiser's configuration (``keypoints``: for keypoint sensing, whose
         error model draws no per-person bias of the feet and no pixel offset, and draws the pixels'
-        noise at the model's own scale: ``foot_sigma`` 0, ``pixel_bias`` False, ``noise_prior_dof``
-        inf; rendered frames through the detector: ``LocaliserConfig``'s measured defaults, the
-        bearing by its own residuals with the detector's centre line, :data:`RENDER_LATERAL_SIGMA`,
-        :data:`RENDER_BODY_SIGMA`)."""
+        noise at the model's own scale, and moves no joint of a body the image cuts: ``foot_sigma``
+        0, ``pixel_bias`` False, ``noise_prior_dof`` inf, ``cut_range_share`` and ``cut_body_sigma``
+        0; rendered frames through the detector: ``LocaliserConfig``'s measured defaults (a body
+        the image cuts among them), the bearing by its own residuals with the detector's centre
+        line, :data:`RENDER_LATERAL_SIGMA`, :data:`RENDER_BODY_SIGMA`)."""
         cfg = LocaliserConfig(
             stature=self.stature, stature_sigma=self.stature_sigma, pitch_sigma_deg=self.pitch_sigma_deg
         )
         if keypoints:
-            cfg = replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf)
+            cfg = replace(cfg, foot_sigma=0.0, pixel_bias=False, noise_prior_dof=math.inf,
+                          cut_range_share=0.0, cut_body_sigma=0.0)  # fmt: skip
         else:
             cfg = replace(cfg, separate_scales=True, lateral_sigma=RENDER_LATERAL_SIGMA, body_sigma=RENDER_BODY_SIGMA)
         if self.pixel_bias is not None:
