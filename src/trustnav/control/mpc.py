@@ -300,9 +300,10 @@ class MpcController:
             # least (unseen), her sighting's uncertainty carried as her margin (module yielding)
             road = self._road
             seen_at = None if last_seen is None else np.asarray(last_seen[2], dtype=float)
+            z = _quantile(self.config.confidence)
             g_pos, g_vel, g_sigma = self._yielder.remembered(now, x[:2], float(x[2]), road.start, road.normal,
                                                              road.room, self.config.safety_radius, peds,
-                                                             seen_at, _quantile(self.config.confidence))  # fmt: skip
+                                                             seen_at, z)  # fmt: skip
             if len(g_pos):
                 n0, m = len(peds), len(g_pos)
                 if last_seen is not None:  # their sightings: where they would be now, as of now
@@ -312,8 +313,7 @@ class MpcController:
                     last_seen = (np.vstack([ls_x, np.hstack([g_pos, g_vel])]), np.concatenate([ls_p, g_cov]),
                                  np.append(ls_t, np.full(m, now)))  # fmt: skip
                 peds, vels, tr = np.vstack([peds, g_pos]), np.vstack([vels, g_vel]), np.append(tr, np.zeros(m))
-                margins = np.append(np.zeros(n0) if margins is None else margins,
-                                    _quantile(self.config.confidence) * g_sigma)  # fmt: skip
+                margins = np.append(np.zeros(n0) if margins is None else margins, z * g_sigma)
                 if covariances is not None:
                     cv = np.asarray(covariances, dtype=float)
                     covariances = np.concatenate([cv, np.zeros((m, *cv.shape[1:]))])

@@ -137,12 +137,14 @@ class VehicleSpec:
 def camera_view(camera: CameraSpec) -> dict[str, float]:
     """The yielding layer's view of ``camera`` (:class:`~trustnav.control.YieldConfig`): its
     horizontal field of view, its place ahead of the car, and the nearest distance ahead at which a
-    person standing on the ground is whole in its image (the feet inside the lower edge)."""
-    lower = math.radians(0.5 * camera.vfov_deg + camera.pitch_deg)  # the lower edge below the horizon
-    if lower <= 1e-6:  # looking up: no one's feet in the image (the view is not used)
+    person standing on the ground is whole in its image (the feet inside the lower edge: where the
+    ray of the lower edge's middle pixel meets the ground, by the camera's own projection)."""
+    pose = camera.pose([0.0, 0.0], 0.0)  # a car at the origin heading along x
+    ground = pose.ground_point([[camera.principal[0], float(camera.height)]])[0]
+    if not np.isfinite(ground[0]):  # the lower edge at or above the horizon: no one's feet in the image
         return {"view_deg": 0.0}
-    near = camera.up / math.tan(lower) if lower < 0.5 * math.pi - 1e-6 else 0.0
-    return {"view_deg": float(camera.fov_deg), "view_forward": float(camera.forward), "view_near": float(near)}
+    near = float(ground[0] - pose.position[0])
+    return {"view_deg": float(camera.fov_deg), "view_forward": float(camera.forward), "view_near": near}
 
 
 @dataclass(frozen=True)
