@@ -15,6 +15,7 @@ pedestrian explains).
     python benchmarks/perceived_drive.py --render        # adds Cases I and II in render mode (~2 min more)
     python benchmarks/perceived_drive.py --render --render-seeds 3 --rate 10   # 3 render runs at 10 frames/s
     python benchmarks/perceived_drive.py --caution on    # with the trust-aware speed bound (issue 34)
+    python benchmarks/perceived_drive.py --caution on --near-range 10   # and a near-field sensor around the front
     python benchmarks/perceived_drive.py --render --skip-keypoints --render-seeds 5 --vary   # 5 different worlds
 
 A rendered drive has no randomness of its own (the seed draws only the keypoint sensor's noise and
@@ -92,9 +93,12 @@ def _case_runs(
     error_correlation: float | None = None,
     only: bool | None = None,
     vary: bool = False,
+    near_range: float | None = None,
     **kw,
 ) -> list[dict]:
     sc = load_drive_scenario(name)
+    if near_range is not None:  # a near-field sensor beside the camera (the presets: none, the paper's)
+        sc = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=near_range))
     if error_correlation is not None:  # the world tracker's error_correlation_s (calibration)
         sc = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, error_correlation_s=error_correlation))
     if caution is not None:  # the trust-aware speed bound on or off (the presets: off, the paper's)
@@ -209,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         "--vary", action="store_true", help="each seed its own world (pedestrians moved, turned; see above)"
     )
     ap.add_argument("--error-correlation", type=float, help="[sensing] error_correlation_s (default: the presets')")
+    ap.add_argument("--near-range", type=float, help="[sensing] near_range, m: a near-field sensor (default: none)")
     args = ap.parse_args(argv)
     caution = None if args.caution is None else args.caution == "on"
     if not 1 <= args.seeds <= 1000:
@@ -219,12 +224,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--skip-keypoints needs --render")
     if args.rate is not None and not 0 < args.rate <= 60:
         ap.error(f"--rate must be in (0, 60] frames per second, got {args.rate:g}")
+    if args.near_range is not None and not 0 <= args.near_range <= 30:
+        ap.error(f"--near-range must be in [0, 30] m, got {args.near_range:g}")
     rows = []
     t0 = time.perf_counter()
     for name, gap in () if args.skip_keypoints else (("case-1", 1.0), ("case-2", 0.5)):
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         runs = _case_runs(name, seeds, args.state, caution=caution, capture_rate=args.rate,
-                          error_correlation=args.error_correlation, vary=args.vary)  # fmt: skip
+                          error_correlation=args.error_correlation, vary=args.vary,
+                          near_range=args.near_range)  # fmt: skip
         rows.append(summarise(name, runs, gap))
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
@@ -240,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
                         entries += _case_runs(name, range(seed, seed + 1), args.state, "render", caution=caution,
                                               renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
                                               error_correlation=args.error_correlation, only=att,
-                                              vary=args.vary)  # fmt: skip
+                                              vary=args.vary, near_range=args.near_range)  # fmt: skip
                     finally:
                         renderer.close()
                         pipeline.backend.close()

@@ -35,6 +35,7 @@ BOUNDS: dict[str, Number | Integer] = {
     "carla_fov": Number(10, 170, unit=" degrees"),
     "search_seconds": Number(0, 10, lo_open=True, unit=" s"),
     "perception_latency": Number(0, 5, unit=" s"),  # sim.driving.world.MAX_PERCEPTION_LATENCY (lazy imports)
+    "near_range": Number(0, 30, unit=" m"),  # SensingSpec.near_range's
 }
 
 

@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from trustnav.geometry.camera import CameraPose
 from trustnav.perception.localisation import GroundLocaliser, LocaliserConfig
@@ -104,10 +104,27 @@ class PedestrianEstimator:
                 )
             )
         self.trust.add_frame(obs, time=time)
+        self._forget_dropped()
+        return ids
+
+    def add_returns(
+        self,
+        time: float,
+        positions: ArrayLike,
+        covariances: ArrayLike,
+        covers: Callable[[NDArray[np.float64]], bool],
+    ) -> list[int | None]:
+        """Fold in one scan of a near-field sensor (:meth:`WorldTracker.add_returns`): positions on
+        the ground, no traits; it follows the people the camera found (their trust goes on) and
+        never starts a track. Returns each return's world track ID (None: it joined none)."""
+        ids = self.tracker.add_returns(time, positions, covariances, covers)
+        self._forget_dropped()
+        return ids
+
+    def _forget_dropped(self) -> None:
         live = {t.track_id for t in self.tracker.tracks}
         for tid in [t for t in self.trust.tracks if t not in live]:
             self.trust.forget(tid)  # the world tracker dropped it: its trust goes with it
-        return ids
 
     def estimates(self, time: float) -> PedestrianEstimates:
         """Every live track predicted to ``time``: the controller's pedestrians; a track's trust

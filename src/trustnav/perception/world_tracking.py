@@ -42,6 +42,7 @@ controller's rate is not the camera's).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -186,6 +187,7 @@ class WorldTrack:
     probabilities: NDArray[np.float64]
     hits: int = 1
     last_seen: float = 0.0
+    last_placed: float = 0.0  # the last camera placement (a near-field return is not one)
     box: NDArray[np.float64] | None = None
     shape: NDArray[np.float64] | None = None  # the pose of its last frame (GroundEstimate.shape)
     confirmed: bool = False
@@ -372,16 +374,65 @@ class WorldTracker:
         every track counts as in view; ``to_world``: the orthogonal 2x2 map from the camera's ground
         frame to the tracks', if they differ). Returns each person's track ID (None for a person
         without estimate). Tracks are predicted to ``time`` first; deletions follow."""
+        return self._fold(time, estimates, boxes, camera, to_world)
+
+    def add_returns(
+        self,
+        time: float,
+        positions: ArrayLike,
+        covariances: ArrayLike,
+        covers: Callable[[NDArray[np.float64]], bool],
+    ) -> list[int | None]:
+        """Fold in one scan of a near-field sensor taken at ``time`` (s; not before the last frame):
+        the ground ``positions`` (M, 2) of the people it returns, in the tracks' coordinates, with
+        their ``covariances`` (M, 2, 2) (a range sensor measures the position itself: no camera,
+        no range scale, no image), and the ground it ``covers`` (a point's (2,) -> whether the
+        sensor would return a person standing there). Only the tracks predicted on that ground
+        take part: they are associated and corrected as with a frame's estimates (the same gates,
+        the same "started walking" hypothesis), and a tentative one the scan missed, or a confirmed
+        one unseen for ``keep_seconds``, is dropped (nobody stands where the sensor looks and finds
+        nobody); every other track is left as it is, to the camera's frames. A return that joins no
+        track is dropped, never born as one: a range sensor says that something is there, only the
+        camera says that it is a person (and gives the traits trust needs). A return is not
+        a camera placement: it shares none of a placement's correlated error, box or pose.
+        Returns each return's track ID (None: it joined none)."""
+        pos = np.asarray(positions, dtype=float).reshape(-1, 2)
+        cov = np.asarray(covariances, dtype=float).reshape(-1, 2, 2)
+        if len(cov) != len(pos) or not (np.isfinite(pos).all() and np.isfinite(cov).all()):
+            raise ValueError(f"positions (M, 2) and covariances (M, 2, 2) must be finite and match, got "
+                             f"{pos.shape} and {cov.shape}")  # fmt: skip
+        estimates: list[GroundEstimate | None] = [
+            GroundEstimate(
+                position=p.copy(), covariance=c.copy(), distance=math.nan, stature=math.nan, pitch_offset=0.0, points=0
+            )
+            for p, c in zip(pos, cov, strict=True)
+        ]
+        return self._fold(time, estimates, None, None, None, covers)
+
+    def _fold(
+        self,
+        time: float,
+        estimates: list[GroundEstimate | None],
+        boxes: list[ArrayLike] | None,
+        camera: CameraPose | None,
+        to_world: NDArray[np.float64] | None,
+        covers: Callable[[NDArray[np.float64]], bool] | None = None,
+    ) -> list[int | None]:
+        """:meth:`add_frame` (``covers`` None: a camera's frame) or :meth:`add_returns`."""
         if not math.isfinite(time) or time < self.time:
             raise ValueError(f"time must be finite and not go back (last {self.time}), got {time!r}")
         cfg = self.config
+        placed = covers is None  # a camera's placements (else a near-field sensor's returns)
+        # a camera's frame takes in every track; a scan only those on the ground it looks at (the
+        # others are not predicted to its time: an IMM's mixing at each update is no idle step)
+        pool = self.tracks if placed else [t for t in self.tracks if covers(self._predict_track(t, time)[0][:2])]
         self.time = float(time)
         cam_xy = None
         if camera is not None and cfg.range_scale_sigma > 0.0:
             cam_xy = np.asarray(camera.position[:2], dtype=float)
             cam_xy = cam_xy if to_world is None else np.asarray(to_world) @ cam_xy
         started: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
-        for a, t in enumerate(self.tracks):
+        for a, t in enumerate(pool):
             if time > t.time and t.probabilities[0] >= 0.5:  # seen standing: she may have started walking
                 started[a] = _started(t, time - t.time, cfg)
             if time > t.time:
@@ -389,7 +440,7 @@ class WorldTracker:
                 t.time = float(time)
         idx = [i for i, e in enumerate(estimates) if e is not None]
         ids: list[int | None] = [None] * len(estimates)
-        n_t, n_d = len(self.tracks), len(idx)
+        n_t, n_d = len(pool), len(idx)
         taken_t: set[int] = set()
         if n_t and n_d:
             from scipy.optimize import linear_sum_assignment
@@ -397,7 +448,7 @@ class WorldTracker:
             cost = np.full((n_t, n_d), np.inf)
             dist2 = np.full((n_t, n_d), np.inf)
             moved = np.zeros((n_t, n_d), dtype=bool)
-            for a, t in enumerate(self.tracks):
+            for a, t in enumerate(pool):
                 z_pos, s_pos = t.measured(cam_xy)
                 recent = t.box is not None and time - t.last_seen <= cfg.overlap_seconds
                 for b, i in enumerate(idx):
@@ -440,28 +491,38 @@ class WorldTracker:
                 i = idx[b]
                 e = estimates[i]
                 assert e is not None
-                t = self.tracks[a]
+                t = pool[a]
                 if moved[a, b]:  # she started walking: the walking model from her standing place
                     t.means[1], t.covariances[1] = started[a]
                 elif dist2[a, b] > cfg.gate:  # taken by overlap: believed only as far as the gate allows
                     e = replace(e, covariance=e.covariance * (dist2[a, b] / cfg.gate))
-                alike = correlated_error_factor(time - t.last_seen, cfg.error_correlation_s, _shared(t, e, cfg))
-                if alike > 1.0:  # a frame soon after the last: its range error is mostly that frame's again
-                    e = replace(e, covariance=inflated_along(e.covariance, alike))
+                if placed:  # a frame soon after the last placement: its range error is mostly that one's again
+                    alike = correlated_error_factor(time - t.last_placed, cfg.error_correlation_s, _shared(t, e, cfg))
+                    if alike > 1.0:
+                        e = replace(e, covariance=inflated_along(e.covariance, alike))
                 self._correct(t, e, cam_xy)
                 t.hits += 1
+                if placed:
+                    t.last_placed = float(time)
+                    t.box = None if boxes is None or boxes[i] is None else np.asarray(boxes[i], dtype=float)
+                    t.shape = e.shape
+                elif t.last_seen < time:  # found by the scan, not the frame: her last box is no longer recent
+                    t.box = None
                 t.last_seen = float(time)
-                t.box = None if boxes is None or boxes[i] is None else np.asarray(boxes[i], dtype=float)
-                t.shape = e.shape
                 t.confirmed = t.confirmed or t.hits >= cfg.confirm_hits
                 ids[i] = t.track_id
                 taken_t.add(a)
-        missed = [t for a, t in enumerate(self.tracks) if a not in taken_t]
-        for i in idx:
+        missed = [t for a, t in enumerate(pool) if a not in taken_t]
+        for i in idx if placed else ():  # a return joins a person's track; it never makes one
             if ids[i] is None:
                 e = estimates[i]
                 assert e is not None
-                ids[i] = self._birth(e, time, None if boxes is None else boxes[i], cam_xy)
+                ids[i] = self._birth(e, time, None if boxes is None else boxes[i], cam_xy, placed)
+        if covers is not None:  # a scan: deletions inside the ground it covers only
+            gone = [t for t in missed if not t.confirmed or time - t.last_seen > cfg.keep_seconds]
+            self.tracks = [t for t in self.tracks if t not in gone]
+            self._history(time)
+            return ids
         # a tentative track missed once is dropped; a confirmed one unseen too long where it should
         # have been seen (or out of view), passed, or too uncertain
         keep = []
@@ -499,10 +560,17 @@ class WorldTracker:
                 continue
             keep.append(t)
         self.tracks = keep
+        self._history(time)
+        return ids
+
+    def _history(self, time: float) -> None:
+        """Each track seen at ``time``: its mean then in its history (once per time)."""
         for t in self.tracks:
             if t.last_seen == time:
-                t.history.append((float(time), t.mean.copy()))
-        return ids
+                if t.history and t.history[-1][0] == time:
+                    t.history[-1] = (float(time), t.mean.copy())
+                else:
+                    t.history.append((float(time), t.mean.copy()))
 
     def _correct(self, t: WorldTrack, e: GroundEstimate, camera_xy: NDArray[np.float64] | None = None) -> None:
         """Kalman update of each model (Joseph form) and of the model probabilities."""
@@ -527,7 +595,12 @@ class WorldTracker:
             t.probabilities /= t.probabilities.sum()
 
     def _birth(
-        self, e: GroundEstimate, time: float, box: ArrayLike | None, camera_xy: NDArray[np.float64] | None = None
+        self,
+        e: GroundEstimate,
+        time: float,
+        box: ArrayLike | None,
+        camera_xy: NDArray[np.float64] | None = None,
+        placed: bool = True,
     ) -> int:
         cfg = self.config
         n = 5 if cfg.range_scale_sigma > 0.0 else 4
@@ -551,6 +624,7 @@ class WorldTracker:
             covariances=np.stack([stand, walk]),
             probabilities=np.array([cfg.initial_standing, 1.0 - cfg.initial_standing]),
             last_seen=float(time),
+            last_placed=float(time) if placed else -math.inf,
             box=None if box is None else np.asarray(box, dtype=float),
             shape=e.shape,
             confirmed=cfg.confirm_hits <= 1,

@@ -63,7 +63,8 @@ def drive_summary(done: list[tuple[str, dict, Path]]) -> list[str]:
             lines.append(f"      {who:<24} min distance {p['min_distance']:.2f} m  "
                   f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}{loc}")  # fmt: skip
         if m.get("state") == "perceived":
-            lines.append(f"      pedestrians perceived by the camera (--state true: the world's); "
+            near = f" and followed by a near-field sensor to {m['near_range']:g} m" if m.get("near_range") else ""
+            lines.append(f"      pedestrians perceived by the camera{near} (--state true: the world's); "
                   f"identity switches {m.get('id_switches', 0)}")  # fmt: skip
     return lines
 

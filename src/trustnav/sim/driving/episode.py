@@ -56,6 +56,8 @@ from trustnav.sim.driving.sensing import (
     SENSING_MODES,
     FrameReport,
     KeypointSensor,
+    NearField,
+    NearScan,
     RenderSensor,
 )
 from trustnav.sim.driving.world import (
@@ -243,8 +245,10 @@ class DriveEnvironment:
             if self._given_world is not None:
                 raise ValueError(f"the {self.world.name} world cannot be reset; start a new one")
             self.world = SimWorld(sc)
-        sense_seq, input_seq = np.random.SeedSequence(self.seed).spawn(2)
+        sense_seq, input_seq, near_seq = np.random.SeedSequence(self.seed).spawn(3)
         self.rng_inputs = np.random.default_rng(input_seq)
+        self.near = NearField.of(sc.sensing)  # a near-field sensor's scans go with the frames
+        self.rng_near = np.random.default_rng(near_seq)
         if self._own_sensor:
             self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
         assert self.sensor is not None
@@ -257,6 +261,8 @@ class DriveEnvironment:
         self.frames: list[FrameReport] = []  # reported when taken in (perception_latency after capture)
         self._captured = 0
         self._next_capture = 0.0
+        self._scans = 0
+        self._next_scan = 0.0
         self.steps = 0
         self.max_steps = math.ceil(sc.duration * self.control_rate - 1e-9)
         self.min_distance_fine = np.full(len(sc.pedestrians), np.inf)
@@ -302,19 +308,49 @@ class DriveEnvironment:
         self._next_capture = self._captured / self.capture_rate
         return frame
 
-    def take_in(self, frame: Frame) -> FrameReport:
+    def scan_due(self) -> bool:
+        """A near-field scan is due (the sensor's rate; never without one)."""
+        return self.near is not None and self.time + 1e-9 >= self._next_scan
+
+    def scan(self) -> NearScan | None:
+        """The near-field sensor's scan now (``SensingSpec.near_range``): the returns of the world's
+        pedestrians inside its field around the car's front; None while the car is faster than
+        the sensor's ``max_speed`` (a park-assist array: no scan in that slot)."""
+        if self.near is None:
+            raise ValueError("this drive has no near-field sensor (SensingSpec.near_range 0)")
+        self._scans += 1
+        self._next_scan = self._scans / self.near.rate
+        ego = self.state
+        if float(ego[3]) > self.near.max_speed:
+            return None
+        return self.near.scan(self.time, ego, self.pedestrians()[0], self.rng_near)
+
+    def _put_scan(self) -> None:
+        """A near-field scan, when one is due and taken, in flight with the frames."""
+        if self.scan_due():
+            scan = self.scan()
+            if scan is not None:
+                self.latency.put(scan)
+
+    def take_in(self, frame: Frame | NearScan) -> FrameReport | None:
         """A frame whose latency has passed into the tracker (:meth:`FramePath.track`), and its
-        report (scored against the truth at its capture)."""
+        report (scored against the truth at its capture); a near-field scan into the tracks
+        (:meth:`FramePath.fold`; no report)."""
+        if isinstance(frame, NearScan):
+            self.path.fold(frame)
+            return None
         report = self.scoring.report(self.path.track(frame), self.time)
         self.frames.append(report)
         return report
 
     def capture(self) -> FrameReport | None:
-        """Capture a frame now (:meth:`capture_frame`), then take in the frames whose latency has
-        passed. Returns the new frame's report if that is now (no latency), else None."""
+        """Capture a frame now (:meth:`capture_frame`) and a near-field scan if one is due, then take
+        in those whose latency has passed. Returns the new frame's report if that is now (no
+        latency), else None."""
         frame = self.capture_frame()
         self.latency.put(frame)
-        reports = [self.take_in(f) for f in self.latency.due(self.time)]
+        self._put_scan()
+        reports = [r for r in (self.take_in(f) for f in self.latency.due(self.time)) if r is not None]
         return reports[-1] if reports and reports[-1].index == frame.index else None
 
     def advance_samples(
@@ -342,6 +378,7 @@ class DriveEnvironment:
         tracker (each scored beside the path); the tracks predicted to now are the input."""
         if self.capture_due():
             self.latency.put(self.capture_frame())  # frame -> perception: people
+        self._put_scan()  # a near-field scan (optional): positions
         for frame in self.latency.due(self.time):  # the perception latency has passed
             self.take_in(frame)  # people -> world tracks with covariances, trust per track
         return self.path.controller_input(self.time, self.state)  # tracks predicted to now
@@ -455,7 +492,8 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
     frames_seen, trust after the first observation and mean gain per frame; reached_goal,
     time_to_goal (s or null), margin_violations (control steps with some distance < R),
     yield_s (seconds the yielding layer held the car back for a pedestrian it could not pass on the
-    road), relaxed_steps, fallback_steps, solve times, perception_latency (s, the scenario's); render
+    road), relaxed_steps, fallback_steps, solve times, perception_latency (s, the scenario's),
+    near_range (m, its near-field sensor's; 0: none); render
     mode adds detection_recall and the wall time perception took per frame
     (``per_frame[...]["perception_ms"]``, median and p95). Distances are always the true ones. With
     perceived states (``state``), per pedestrian the localisation error of its track after each
@@ -492,6 +530,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "capture_rate": r.capture_rate,
         "control_rate": sc.control.rate,
         "perception_latency": sc.sensing.perception_latency,
+        "near_range": sc.sensing.near_range,
         "pedestrians": peds,
         "reached_goal": bool(r.reached_goal),
         "time_to_goal": None if r.time_to_goal is None else round(float(r.time_to_goal), 3),

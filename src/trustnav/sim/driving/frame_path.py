@@ -34,7 +34,7 @@ from trustnav.geometry.camera import CameraPose
 from trustnav.perception.pedestrians import PedestrianEstimator, SeenPerson
 from trustnav.perception.world_tracking import TrackState
 from trustnav.sim.driving.body import Appearance, Skeleton
-from trustnav.sim.driving.sensing import KeypointSensor, RenderSensor, SensedPerson
+from trustnav.sim.driving.sensing import KeypointSensor, NearField, NearScan, RenderSensor, SensedPerson
 from trustnav.sim.driving.world import SensingSpec
 from trustnav.sim.engine import Observation
 from trustnav.trust import Sighting, TrustEstimator
@@ -75,16 +75,17 @@ class TrackedFrame:
 class PerceptionLatency:
     """The frames in flight between capture and the tracker: ``seconds`` of perception latency
     (``SensingSpec.perception_latency``); a frame is due at the first call at or after its
-    capture time plus ``seconds``."""
+    capture time plus ``seconds``. A near-field sensor's scans (:class:`NearScan`) travel with
+    them, so that the tracker takes everything in the order it was taken."""
 
     def __init__(self, seconds: float) -> None:
         self.seconds = float(seconds)
-        self._queue: deque[Frame] = deque()
+        self._queue: deque[Frame | NearScan] = deque()
 
-    def put(self, frame: Frame) -> None:
+    def put(self, frame: Frame | NearScan) -> None:
         self._queue.append(frame)
 
-    def due(self, now: float) -> list[Frame]:
+    def due(self, now: float) -> list[Frame | NearScan]:
         """The frames whose latency has passed at ``now``, in capture order (taken out)."""
         cut = now + 1e-9 - self.seconds
         out = []
@@ -93,7 +94,7 @@ class PerceptionLatency:
         return out
 
     @property
-    def in_flight(self) -> tuple[Frame, ...]:
+    def in_flight(self) -> tuple[Frame | NearScan, ...]:
         """The frames captured and not yet due."""
         return tuple(self._queue)
 
@@ -144,15 +145,21 @@ class FramePath:
         """The frame's people into the tracks and their trust, at the frame's capture time."""
         raise NotImplementedError
 
+    def fold(self, scan: NearScan) -> None:
+        """A near-field sensor's scan into the tracks (positions, no traits); nothing on a path
+        that does not track (the world's states)."""
+
     def controller_input(self, time: float, ego: NDArray[np.float64]) -> Observation:
         """What the controller gets at ``time`` (``ego``: the car's state)."""
         raise NotImplementedError
 
 
 class PerceivedPath(FramePath):
-    """The camera only: each frame's people are placed on the ground, followed by the world tracker
-    and given trust per world track (:class:`~trustnav.perception.pedestrians.PedestrianEstimator`);
-    the controller gets every live track predicted to the step, with its covariance."""
+    """The car's own sensors only: each frame's people are placed on the ground, followed by the
+    world tracker and given trust per world track
+    (:class:`~trustnav.perception.pedestrians.PedestrianEstimator`), then the near-field sensor's
+    scans, if any, folded in (:meth:`fold`: positions, no traits); the controller gets every live
+    track predicted to the step, with its covariance."""
 
     def __init__(
         self,
@@ -166,21 +173,36 @@ class PerceivedPath(FramePath):
         tracker = spec.tracker(keypoints=keypoints)
         self.pedestrians = PedestrianEstimator(spec.localiser(keypoints), tracker, self.trust)
         self.ground_height = ground_height
+        self.near = NearField.of(spec)
         # each live track's state and covariance at the last frame that observed it, and when
         self._seen: dict[int, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
 
     def track(self, frame: Frame) -> TrackedFrame:
         seen = [SeenPerson(s.person, s.eye_contact, s.phone) for s in frame.people]
         ids = self.pedestrians.add_frame(frame.time, frame.camera, seen, self.ground_height, frame.to_scenario)
-        tracks = tuple(self.pedestrians.tracker.predict(frame.time))
-        self._seen = {t.track_id: (t.mean.copy(), t.covariance.copy(), float(frame.time)) if t.last_seen >= frame.time
-                      else self._seen.get(t.track_id, (t.mean.copy(), t.covariance.copy(), float(t.last_seen)))
-                      for t in tracks}  # fmt: skip
+        tracks = self._sightings(frame.time)
         people = [
             replace(s, track_id=-1 if tid is None else tid, trust=None if tid is None else self.trust.trust(tid))
             for s, tid in zip(frame.people, ids, strict=True)
         ]
         return TrackedFrame(frame, people, tracks)
+
+    def fold(self, scan: NearScan) -> None:
+        near = self.near
+        if near is None:
+            raise ValueError("a near-field scan reached a path whose sensing has none (SensingSpec.near_range 0)")
+        # the ground it looked at (a body's half width inside its edges): nobody there whom it did not return
+        self.pedestrians.add_returns(scan.time, scan.positions, scan.covariances,
+                                     lambda xy: near.covers(scan.ego, xy, margin=0.5))  # fmt: skip
+        self._sightings(scan.time)
+
+    def _sightings(self, time: float) -> tuple[TrackState, ...]:
+        """Every live track at ``time``, keeping each one's state when last seen (for the controller)."""
+        tracks = tuple(self.pedestrians.tracker.predict(time))
+        self._seen = {t.track_id: (t.mean.copy(), t.covariance.copy(), float(time)) if t.last_seen >= time
+                      else self._seen.get(t.track_id, (t.mean.copy(), t.covariance.copy(), float(t.last_seen)))
+                      for t in tracks}  # fmt: skip
+        return tracks
 
     def controller_input(self, time: float, ego: NDArray[np.float64]) -> Observation:
         est = self.pedestrians.estimates(time)

@@ -24,6 +24,7 @@ observed has trust 0 (gamma = gamma_ini, the safe default).
 from __future__ import annotations
 
 import inspect
+import math
 import time as _time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -44,6 +45,8 @@ __all__ = [
     "SENSING_MODES",
     "FrameReport",
     "KeypointSensor",
+    "NearField",
+    "NearScan",
     "PedestrianView",
     "RenderSensor",
     "SensedPerson",
@@ -137,6 +140,67 @@ class FrameReport:
     @property
     def ground_truth(self) -> int:
         return sum(v.in_view for v in self.views)
+
+
+@dataclass(frozen=True)
+class NearScan:
+    """One scan of a :class:`NearField` sensor taken at ``time`` (s): the car's pose then (x, y,
+    yaw), the returns' ground positions (M, 2) and covariances (M, 2, 2), and, for scoring only,
+    the world pedestrian each return came from (M,)."""
+
+    time: float
+    ego: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    covariances: NDArray[np.float64]
+    indices: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class NearField:
+    """A near-field sensor around the car's front (``SensingSpec.near_range``, ``near_deg``,
+    ``near_sigma``, ``near_rate``): the ground within ``range`` m of the car's reference point and ``deg`` / 2
+    either side of its heading, where a forward camera sees nobody's feet (nearer than its lower
+    edge meets the ground) or nobody at all (beside its field of view): a bumper's short-range
+    radars or ultrasonic array, which measure a position, not a pose. Each person whose ground
+    position lies inside returns that position with Gaussian noise of ``sigma`` m per axis,
+    ``rate`` scans a second while the car is no faster than ``max_speed`` m/s."""
+
+    range: float
+    deg: float = 180.0
+    sigma: float = 0.15
+    rate: float = 10.0
+    max_speed: float = 3.0
+
+    @classmethod
+    def of(cls, spec: SensingSpec) -> NearField | None:
+        """The scenario's near-field sensor, or None (``near_range`` 0: the camera alone)."""
+        if spec.near_range <= 0:
+            return None
+        return cls(spec.near_range, spec.near_deg, spec.near_sigma, spec.near_rate, spec.near_max_speed)
+
+    def covers(self, ego: NDArray[np.float64], point: NDArray[np.float64], margin: float = 0.0) -> bool:
+        """Whether ``point`` (2,) lies inside the field of a car at ``ego`` (x, y, yaw), ``margin``
+        m inside its edges (a person of that half width there wholly inside)."""
+        rel = np.asarray(point, dtype=float)[:2] - np.asarray(ego, dtype=float)[:2]
+        dist = float(np.hypot(*rel))
+        if dist + margin > self.range:
+            return False
+        if self.deg >= 360.0 or dist < 1e-9:
+            return True
+        yaw = float(ego[2])
+        bearing = abs(math.atan2(math.cos(yaw) * rel[1] - math.sin(yaw) * rel[0],
+                                 math.cos(yaw) * rel[0] + math.sin(yaw) * rel[1]))  # fmt: skip
+        return bearing + math.atan2(margin, dist) <= math.radians(0.5 * self.deg)
+
+    def scan(
+        self, time: float, ego: NDArray[np.float64], positions: NDArray[np.float64], rng: np.random.Generator
+    ) -> NearScan:
+        """The returns at ``time`` of the people at ``positions`` (N, 2: the world's) for a car at ``ego``."""
+        pos = np.asarray(positions, dtype=float).reshape(-1, 2)
+        idx = np.array([j for j, p in enumerate(pos) if self.covers(ego, p)], dtype=np.int64)
+        noisy = pos[idx] + rng.normal(0.0, self.sigma, (len(idx), 2))
+        cov = np.broadcast_to(self.sigma**2 * np.eye(2), (len(idx), 2, 2)).copy()
+        return NearScan(float(time), np.asarray(ego, dtype=float)[:3].copy(), noisy, cov, idx)
 
 
 def projected_box(camera: CameraPose, skeleton: Skeleton, pad: float = 0.04) -> NDArray[np.float64] | None:

@@ -354,6 +354,19 @@ class SensingSpec:
     estimates (world tracker and trust), stamped with the capture time and predicted from it to
     each control step; 0 (default, as the paper): at once. A frame still in flight at the end of
     an episode is never delivered.
+    A near-field sensor (:class:`~trustnav.sim.driving.sensing.NearField`; the ground around the
+    car's front that a forward camera cannot see: a bumper's short-range radars or ultrasonic
+    array): ``near_range`` (m from the car's reference point; 0, the default and the paper's: none,
+    the camera alone), ``near_deg`` (its field, centred on the car's heading), ``near_sigma`` (m,
+    each axis of a return's position), ``near_rate`` (scans per second), ``near_max_speed`` (m/s:
+    it scans only while the car is this slow, as a park-assist array does: creeping and stopped,
+    where the car loses whom it waits for; inf: at any speed, which the yielding layer is not
+    measured with, docs/drive.md). Each scan returns the
+    ground position of each person inside its field, no traits, stamped with its time and
+    delivered to the tracker in time order with the frames (their ``perception_latency`` too); the
+    returns follow the people the camera found (they never start a track: only the camera says
+    what is a person), and a track is dropped where the sensor looks and finds nobody
+    (:meth:`~trustnav.perception.world_tracking.WorldTracker.add_returns`).
     """
 
     position_noise: Annotated[float, NON_NEGATIVE] = 0.0
@@ -396,6 +409,11 @@ class SensingSpec:
     ] = None
     track_keep: float = 2.5
     perception_latency: Annotated[float, Number(0, MAX_PERCEPTION_LATENCY, unit=" s")] = 0.0
+    near_range: Annotated[float, Number(0, 30, unit=" m", note=" (0: no near-field sensor)")] = 0.0
+    near_deg: Annotated[float, Number(0, 360, lo_open=True, unit=" degrees")] = 180.0
+    near_sigma: Annotated[float, Number(0, 2, lo_open=True, unit=" m")] = 0.15
+    near_rate: Annotated[float, Number(0, 100, lo_open=True, unit=" scans per second")] = 10.0
+    near_max_speed: Annotated[float, Number(0, finite=False, unit=" m/s", note=" (inf: at any speed)")] = 3.0
 
     def __post_init__(self) -> None:
         check_fields(self)
