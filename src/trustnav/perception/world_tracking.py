@@ -35,6 +35,10 @@ identity survives frames that are a second apart and people who leave the view f
   that kept it waited for someone it could not see; a person cut off in front of the camera, where
   the car may drive into them, is kept).
 
+:meth:`WorldTracker.add_returns` folds in a near-field sensor's scan (positions on the ground, no
+image): its returns join the tracks on the ground it looks at, never start one, and a track there
+that it does not find is dropped.
+
 :meth:`WorldTracker.predict` gives every live track's mean and covariance at any time (the
 controller's rate is not the camera's).
 """

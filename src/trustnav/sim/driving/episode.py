@@ -247,7 +247,7 @@ class DriveEnvironment:
             self.world = SimWorld(sc)
         sense_seq, input_seq, near_seq = np.random.SeedSequence(self.seed).spawn(3)
         self.rng_inputs = np.random.default_rng(input_seq)
-        self.near = NearField.of(sc.sensing)  # a near-field sensor's scans go with the frames
+        self.near = NearField.of(sc.sensing)  # a near-field sensor (None: the camera alone)
         self.rng_near = np.random.default_rng(near_seq)
         if self._own_sensor:
             self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
