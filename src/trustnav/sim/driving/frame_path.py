@@ -34,7 +34,7 @@ from trustnav.geometry.camera import CameraPose
 from trustnav.perception.pedestrians import PedestrianEstimator, SeenPerson
 from trustnav.perception.world_tracking import TrackState
 from trustnav.sim.driving.body import Appearance, Skeleton
-from trustnav.sim.driving.sensing import KeypointSensor, NearField, NearScan, RenderSensor, SensedPerson
+from trustnav.sim.driving.sensing import KeypointSensor, NearScan, RenderSensor, SensedPerson
 from trustnav.sim.driving.world import SensingSpec
 from trustnav.sim.engine import Observation
 from trustnav.trust import Sighting, TrustEstimator
@@ -173,7 +173,6 @@ class PerceivedPath(FramePath):
         tracker = spec.tracker(keypoints=keypoints)
         self.pedestrians = PedestrianEstimator(spec.localiser(keypoints), tracker, self.trust)
         self.ground_height = ground_height
-        self.near = NearField.of(spec)
         # each live track's state and covariance at the last frame that observed it, and when
         self._seen: dict[int, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
 
@@ -188,12 +187,7 @@ class PerceivedPath(FramePath):
         return TrackedFrame(frame, people, tracks)
 
     def fold(self, scan: NearScan) -> None:
-        near = self.near
-        if near is None:
-            raise ValueError("a near-field scan reached a path whose sensing has none (SensingSpec.near_range 0)")
-        # the ground it looked at (a body's half width inside its edges): nobody there whom it did not return
-        self.pedestrians.add_returns(scan.time, scan.positions, scan.covariances,
-                                     lambda xy: near.covers(scan.ego, xy, margin=0.5))  # fmt: skip
+        self.pedestrians.add_returns(scan.time, scan.positions, scan.covariances, scan.looked_at)
         self._sightings(scan.time)
 
     def _sightings(self, time: float) -> tuple[TrackState, ...]:

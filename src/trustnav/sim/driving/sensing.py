@@ -144,15 +144,21 @@ class FrameReport:
 
 @dataclass(frozen=True)
 class NearScan:
-    """One scan of a :class:`NearField` sensor taken at ``time`` (s): the car's pose then (x, y,
-    yaw), the returns' ground positions (M, 2) and covariances (M, 2, 2), and, for scoring only,
-    the world pedestrian each return came from (M,)."""
+    """One scan of a :class:`NearField` sensor (``field``) taken at ``time`` (s): the car's pose
+    then (x, y, yaw), the returns' ground positions (M, 2) and covariances (M, 2, 2), and, for
+    scoring only, the world pedestrian each return came from (M,)."""
 
     time: float
     ego: NDArray[np.float64]
     positions: NDArray[np.float64]
     covariances: NDArray[np.float64]
     indices: NDArray[np.int64]
+    field: NearField
+
+    def looked_at(self, point: NDArray[np.float64]) -> bool:
+        """Whether the scan looked at ``point`` (2,): a person of half a metre's half width standing
+        there wholly inside its field (where it returns nobody, nobody stands)."""
+        return self.field.covers(self.ego, point, margin=0.5)
 
 
 @dataclass(frozen=True)
@@ -200,7 +206,7 @@ class NearField:
         idx = np.array([j for j, p in enumerate(pos) if self.covers(ego, p)], dtype=np.int64)
         noisy = pos[idx] + rng.normal(0.0, self.sigma, (len(idx), 2))
         cov = np.broadcast_to(self.sigma**2 * np.eye(2), (len(idx), 2, 2)).copy()
-        return NearScan(float(time), np.asarray(ego, dtype=float)[:3].copy(), noisy, cov, idx)
+        return NearScan(float(time), np.asarray(ego, dtype=float)[:3].copy(), noisy, cov, idx, self)
 
 
 def projected_box(camera: CameraPose, skeleton: Skeleton, pad: float = 0.04) -> NDArray[np.float64] | None:
