@@ -24,6 +24,7 @@ from trustnav.control import (
     reaction_time,
 )
 from trustnav.control._kernels import under_speed_cap
+from trustnav.control.solvers import SolveResult, SolveStatus, SqpSolver
 from trustnav.sim.driving import load_drive_scenario, run_drive
 from trustnav.sim.driving.episode import drive_metrics
 from trustnav.sim.driving.world import ControlSpec
@@ -180,6 +181,36 @@ def test_a_yield_is_a_stop_that_no_bystanders_growing_region_pushes_the_car_past
     assert moved[False] > 0.2
 
 
+class _FailingSolver(SqpSolver):
+    """A solver that always fails: the controller applies one of its checked fallbacks."""
+
+    def solve(self, problem, u0, deadline=None):
+        u = np.full((problem.n_h, problem.model.nu), np.nan)
+        return SolveResult(u, SolveStatus.FAILED, 1, np.nan, np.nan, True, "forced failure")
+
+
+def test_the_previous_plan_applied_as_a_fallback_keeps_the_speed_rows():
+    """Issue 34 (lane crossings with the near-field sensor, seed 8 run 59): a waiting car's plan
+    had accelerated on a step the yield flickered off; when the solver then failed, the previous
+    plan shifted ranked first and was applied as it was, above the yield's cap, and the car crept
+    toward the crosser. The fallback is now the solver's own start: the shifted plan held under
+    the speed rows."""
+    cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0))
+    road = RoadEdgeBarrier((-50.0, 0.0), (250.0, 0.0), left=3.0, right=3.0, margin=0.9)
+    cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, caution=CautionConfig(), deterministic=True)
+    ctl = MpcController(KinematicBicycle(), cost, cfg, barriers=[road])
+    x = np.array([0.0, 2.5, 0.0, 8.0])  # against the road's edge: braking ranks no better
+    ped = np.array([[16.0, 3.4]])
+    held = ctl.step(x, ped, np.zeros((1, 2)), np.array([1.0]))  # trusted: 8 m/s held
+    assert held.predicted_states[1:, 3].min() == pytest.approx(8.0)
+    ctl.solver = _FailingSolver()
+    sol = ctl.step(held.predicted_states[1], ped, np.zeros((1, 2)), np.array([0.0]))
+    assert sol.source == "previous_plan" and sol.detour is not None and sol.detour.startswith("caution")
+    assert ctl.problem.speed_cap < 8.0
+    assert sol.predicted_states[1:, 3].max() <= ctl.problem.speed_cap + 1e-9
+    np.testing.assert_array_equal(sol.inputs[:-1, 0], held.inputs[1:, 0])  # its steering: the plan's, shifted
+
+
 def _kerb(caution: bool, x_ped: float):
     sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml").with_attention(False)
     ped = dataclasses.replace(sc.pedestrians[0], position=(x_ped, 100.0))
@@ -230,8 +261,6 @@ def test_a_bound_that_falls_below_the_speed_does_not_strain_the_solver():
     """A warm start above a new, lower bound cost the SQP its iteration budget on 25-40 steps of
     this drive (its merit counts CBF rows only); the controller now starts it inside the speed
     rows, and every step converges."""
-    from trustnav.control import SolveStatus
-
     sc = load_drive_scenario(ROOT / "examples/scenarios/kerb-attentive.toml")
     r = run_drive(sc, "keypoints", seed=2, attentive=True)
     assert r.reached_goal and all(s is SolveStatus.OPTIMAL for s in r.statuses)

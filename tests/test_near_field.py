@@ -202,3 +202,20 @@ def test_a_crosser_who_walks_in_front_of_the_bumper_is_seen_leave(repo_root):
         out[near] = run_drive(world, sensing="keypoints", seed=42, state="perceived").metrics()
     assert not out[0.0]["reached_goal"]
     assert out[10.0]["reached_goal"] and out[10.0]["road_departure_max"] == 0.0
+
+
+@pytest.mark.slow
+def test_a_waiting_car_does_not_creep_toward_the_crosser_it_sees_beside_it(repo_root):
+    """Lane crossing run 59 (seed 8, 1 frame/s, near-field sensor): the car waits turned toward
+    where the crosser walks; a yield that flickered off for one step left a plan that accelerates,
+    and the fallbacks of the next steps applied it above the yield's cap, the car creeping toward
+    her to 1.36 m. The fallback held under the speed rows, it waits and passes at >= R."""
+    lc = _benchmark(repo_root, "lane_crossings")
+    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
+    rng = np.random.default_rng(8)
+    for _ in range(60):
+        sc = lc.variant(base, rng)
+    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
+    m = run_drive(world, sensing="keypoints", seed=59, state="perceived").metrics()
+    assert m["reached_goal"] and m["road_departure_max"] == 0.0
+    assert m["pedestrians"][0]["min_distance"] >= 2.5

@@ -379,8 +379,8 @@ class MpcController:
             # checked, ranked fallbacks: the solver's plan competes with the shifted previous plan
             # and braking to rest; ties keep the solver's plan
             cands = [("solver", res.inputs)] if np.isfinite(res.inputs).all() else []
-            if shifted is not None:
-                cands.append(("previous_plan", np.clip(shifted, p.ulo, p.uhi)))
+            if shifted is not None:  # u0: the shifted plan, held under the speed rows where capped
+                cands.append(("previous_plan", np.clip(u0, p.ulo, p.uhi)))
             cands.append(("braking", p.braking_plan()))
             scored = []
             for i, (name, u) in enumerate(cands):
