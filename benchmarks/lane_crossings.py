@@ -9,7 +9,8 @@ reach the goal, the medians of time to goal and time spent yielding, and the cro
 switches and the coverage of her track's 90 % region (:func:`tracking`). Of the runs within R it
 counts those that could have stopped R short of the crosser's path, braking at the vehicle's limit
 after one control step and the actuation latency, (a) from the moment she stepped out (as if the
-car knew at once) and (b) from the moment the camera could have shown it (:func:`shown_at`). It also
+car knew at once) and (b) from the moment a sensor could have shown it (:func:`shown_at`: the camera,
+or the near-field sensor where there is one). It also
 lists the runs whose car stopped turned off its lane, and those whose car, after braking to a stop,
 moved with her ahead within R of its heading line (:func:`stop_and_go`).
 
@@ -42,6 +43,7 @@ import numpy as np
 
 from trustnav.sim.driving import load_drive_scenario, run_drive
 from trustnav.sim.driving.behaviour import BehaviourSpec
+from trustnav.sim.driving.sensing import NearField
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -93,17 +95,36 @@ def _room_from(sc, r, t: float) -> float:  # type: ignore[no-untyped-def]
 
 
 def shown_at(sc, r) -> float | None:  # type: ignore[no-untyped-def]
-    """When the camera could first have shown the controller that the crosser stepped out: the
-    first frame captured at or after her step-out that observed her at least ``MEASURABLE`` from her
-    standing place, plus the perception latency (``FrameReport.known_at``); None if none did."""
+    """When a sensor could first have shown the controller that the crosser stepped out: the first
+    camera frame captured at or after her step-out that observed her at least ``MEASURABLE`` from her
+    standing place, plus the perception latency (``FrameReport.known_at``); with a near-field sensor
+    (``[sensing] near_range``), also its first scan at or after her step-out that the car was slow
+    enough to take with her inside its field and that far from her standing place (its returns lie
+    within ``near_sigma`` of her), plus the same latency; the earlier of the two. None if neither did."""
     start = np.asarray(sc.pedestrians[0].position, dtype=float)
     t0 = sc.pedestrians[0].behaviour.start_time
+    shown = None
     for f in r.frames:
         v = f.views[0]
         if f.time >= t0 - 1e-9 and v.observed and v.position is not None:
             if float(np.hypot(*(np.asarray(v.position) - start))) >= MEASURABLE:
-                return float(f.known_at)
-    return None
+                shown = float(f.known_at)
+                break
+    near = NearField.of(sc.sensing)
+    if near is None:
+        return shown
+    scans = 0  # the drive's scan slots: one each 1 / rate s, taken only while the car is slow
+    lag = sc.sensing.perception_latency
+    for t, ego, her in zip(r.times, r.ego, r.pedestrians[:, 0], strict=True):
+        if shown is not None and t + lag >= shown:
+            break
+        if t + 1e-9 < scans / near.rate:
+            continue
+        scans += 1
+        if t >= t0 - 1e-9 and ego[3] <= near.max_speed and near.covers(ego, her):
+            if float(np.hypot(*(her - start))) >= MEASURABLE:
+                return float(t) + lag
+    return shown
 
 
 #: chi^2 with 2 degrees of freedom, 90 %: the truth inside the 90 % region of a 2-D estimate.
@@ -154,7 +175,7 @@ def stop_and_go(sc, r) -> tuple[float, float]:  # type: ignore[no-untyped-def]
 
 def brake_room(sc, r) -> tuple[float, float | None]:  # type: ignore[no-untyped-def]
     """The braking room (:func:`_room_from`) (a) from the moment she stepped out (the car knew at
-    once) and (b) from the moment the camera could have shown it (:func:`shown_at`; None: never)."""
+    once) and (b) from the moment a sensor could have shown it (:func:`shown_at`; None: never)."""
     shown = shown_at(sc, r)
     return _room_from(sc, r, sc.pedestrians[0].behaviour.start_time), (
         None if shown is None else _room_from(sc, r, shown)
@@ -255,7 +276,7 @@ def main() -> None:
     shown = [r for r in inside if r["brake_room_shown_m"] is not None and r["brake_room_shown_m"] >= 0]
     print(f"  off the road: {len(off)}  within R: {len(inside)}  goal not reached: {len(stuck)}")
     print(f"  of those within R, could have stopped R short braking at the limit (a) from her step-out: "
-          f"{len(avoidable)}, (b) from when the camera could show it: {len(shown)}")  # fmt: skip
+          f"{len(avoidable)}, (b) from when a sensor could show it: {len(shown)}")  # fmt: skip
     print(f"  closest approach {min(r['closest_m'] for r in rows):.2f} m (R = {base.control.safety_radius} m)")
     yielded = [r["yield_s"] for r in rows]
     ttg = ttg or [float("nan")]  # none reached the goal (--only)
