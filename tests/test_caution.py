@@ -189,26 +189,35 @@ class _FailingSolver(SqpSolver):
         return SolveResult(u, SolveStatus.FAILED, 1, np.nan, np.nan, True, "forced failure")
 
 
-def test_the_previous_plan_applied_as_a_fallback_keeps_the_speed_rows():
+def test_no_fallback_speeds_the_car_past_the_cap():
     """Issue 34 (lane crossings with the near-field sensor, seed 8 run 59): a waiting car's plan
-    had accelerated on a step the yield flickered off; when the solver then failed, the previous
-    plan shifted ranked first and was applied as it was, above the yield's cap, and the car crept
-    toward the crosser. The fallback is now the solver's own start: the shifted plan held under
-    the speed rows."""
+    had accelerated on a step the yield flickered off; when the solver then ended unconverged, the
+    previous plan shifted ranked first and was applied as it was, above the yield's cap, and the
+    car crept toward the crosser (1.36 m). A plan the solver did not converge to, and the previous
+    plan, now never speed the car past the cap or its speed now (braking is their rival; a car
+    still above a cap it cannot meet at once is not made to brake by them: that is the rows')."""
     cost = LaneTrackingCost(start=(0.0, 0.0), goal=(200.0, 0.0))
     road = RoadEdgeBarrier((-50.0, 0.0), (250.0, 0.0), left=3.0, right=3.0, margin=0.9)
     cfg = MpcConfig(horizon=7, dt=0.08, safety_radius=2.5, caution=CautionConfig(), deterministic=True)
-    ctl = MpcController(KinematicBicycle(), cost, cfg, barriers=[road])
-    x = np.array([0.0, 2.5, 0.0, 8.0])  # against the road's edge: braking ranks no better
     ped = np.array([[16.0, 3.4]])
-    held = ctl.step(x, ped, np.zeros((1, 2)), np.array([1.0]))  # trusted: 8 m/s held
-    assert held.predicted_states[1:, 3].min() == pytest.approx(8.0)
-    ctl.solver = _FailingSolver()
-    sol = ctl.step(held.predicted_states[1], ped, np.zeros((1, 2)), np.array([0.0]))
-    assert sol.source == "previous_plan" and sol.detour is not None and sol.detour.startswith("caution")
-    assert ctl.problem.speed_cap < 8.0
-    assert sol.predicted_states[1:, 3].max() <= ctl.problem.speed_cap + 1e-9
-    np.testing.assert_array_equal(sol.inputs[:-1, 0], held.inputs[1:, 0])  # its steering: the plan's, shifted
+    for v0, speeds_up in ((3.0, True), (8.0, False)):
+        ctl = MpcController(KinematicBicycle(), cost, cfg, barriers=[road])
+        x = np.array([0.0, 2.5, 0.0, v0])  # against the road's edge: braking ranks no better
+        free = ctl.step(x, ped, np.zeros((1, 2)), np.array([1.0]))  # trusted: no cap
+        assert bool(free.predicted_states[-1, 3] > free.predicted_states[1, 3]) == speeds_up
+        ctl.solver = _FailingSolver()
+        x1 = free.predicted_states[1]
+        sol = ctl.step(x1, ped, np.zeros((1, 2)), np.array([0.0]))  # untrusted: capped
+        cap = ctl.problem.speed_cap
+        assert sol.source == "previous_plan" and sol.detour is not None and sol.detour.startswith("caution")
+        top = max(cap, float(x1[3]))
+        assert sol.predicted_states[1:, 3].max() <= top + 1e-9
+        if speeds_up:  # the plan it came from went past the cap
+            assert cap > x1[3] and free.predicted_states[2:, 3].max() > cap + 0.3
+            assert sol.predicted_states[1:, 3].max() == pytest.approx(cap)
+        else:  # above the cap: held, not braked
+            assert cap < x1[3] and sol.predicted_states[1:, 3].min() == pytest.approx(x1[3])
+        np.testing.assert_array_equal(sol.inputs[:-1, 0], free.inputs[1:, 0])  # its steering: the plan's, shifted
 
 
 def _kerb(caution: bool, x_ped: float):

@@ -379,8 +379,13 @@ class MpcController:
             # checked, ranked fallbacks: the solver's plan competes with the shifted previous plan
             # and braking to rest; ties keep the solver's plan
             cands = [("solver", res.inputs)] if np.isfinite(res.inputs).all() else []
-            if shifted is not None:  # u0: the shifted plan, held under the speed rows where capped
-                cands.append(("previous_plan", np.clip(u0, p.ulo, p.uhi)))
+            if shifted is not None:
+                cands.append(("previous_plan", np.clip(shifted, p.ulo, p.uhi)))
+            if p.speed_cap < math.inf and type(self.model) is KinematicBicycle:
+                # an unconverged plan may break the speed rows (the SQP's merit counts CBF rows
+                # only): none speeds the car past the cap or its speed now (braking is a candidate)
+                top = max(p.speed_cap, float(x[3]))
+                cands = [(name, self._under_speed_cap(u, float(x[3]), top)) for name, u in cands]
             cands.append(("braking", p.braking_plan()))
             scored = []
             for i, (name, u) in enumerate(cands):
@@ -631,12 +636,14 @@ class MpcController:
                                  f"beside 4 x 4 covariances, got shapes {shapes}")  # fmt: skip
         return out[1], out[2], out[3], out[4], out[5], (found, j, ahead)
 
-    def _under_speed_cap(self, u: NDArray[np.float64], v0: float) -> NDArray[np.float64]:
+    def _under_speed_cap(self, u: NDArray[np.float64], v0: float, cap: float | None = None) -> NDArray[np.float64]:
         """``u`` with its accelerations lowered where needed so that the bicycle's speed stays
-        within the step's speed rows (``problem.speed_cap``, widened as the model widens them)."""
+        within the step's speed rows (``cap``, default ``problem.speed_cap``, widened as the model
+        widens them)."""
         m = self.model
         u = np.array(u, dtype=float)  # a fresh C array (the kernel writes it)
-        under_speed_cap(u, float(v0), min(m.speed_max, self.problem.speed_cap), float(m.accel_min), self.config.dt)
+        top = self.problem.speed_cap if cap is None else cap
+        under_speed_cap(u, float(v0), min(m.speed_max, top), float(m.accel_min), self.config.dt)
         return u
 
     def _radii(self, n: int, margins: NDArray[np.float64] | None) -> NDArray[np.float64]:
