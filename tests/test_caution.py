@@ -215,8 +215,10 @@ def test_no_fallback_speeds_the_car_past_the_cap():
         if speeds_up:  # the plan it came from went past the cap
             assert cap > x1[3] and free.predicted_states[2:, 3].max() > cap + 0.3
             assert sol.predicted_states[1:, 3].max() == pytest.approx(cap)
+            assert f"lowered to keep the speed under {cap:.3g} m/s" in sol.message
         else:  # above the cap: held, not braked
             assert cap < x1[3] and sol.predicted_states[1:, 3].min() == pytest.approx(x1[3])
+            assert "lowered" not in sol.message
         np.testing.assert_array_equal(sol.inputs[:-1, 0], free.inputs[1:, 0])  # its steering: the plan's, shifted
 
 

@@ -385,7 +385,11 @@ class MpcController:
                 # an unconverged plan may break the speed rows (the SQP's merit counts CBF rows
                 # only): none speeds the car past the cap or its speed now (braking is a candidate)
                 top = max(p.speed_cap, float(x[3]))
-                cands = [(name, self._under_speed_cap(u, float(x[3]), top)) for name, u in cands]
+                held = [(name, u, self._under_speed_cap(u, float(x[3]), top)) for name, u in cands]
+                lowered = {name for name, u, h in held if not np.array_equal(u, h)}
+                cands = [(name, h) for name, _, h in held]
+            else:
+                top, lowered = math.inf, set()
             cands.append(("braking", p.braking_plan()))
             scored = []
             for i, (name, u) in enumerate(cands):
@@ -397,6 +401,9 @@ class MpcController:
                 message = f"{source} applied (violation {viol:.3g}) instead of the solver's plan: " + (
                     f"{res.status.value}: {res.message}" if res.message else res.status.value
                 )
+            if source in lowered:
+                note = f"its accelerations lowered to keep the speed under {top:.3g} m/s"
+                message = f"{message}; {note}" if message else note
         predicted = self.model.rollout(x, plan, self.config.dt)
         broken = self.model.state_limit_violation(predicted)
         state_violation, repaired = broken, False
