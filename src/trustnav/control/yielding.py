@@ -85,6 +85,12 @@ the road's line, ``r`` its R plus any uncertainty margin; the car's centre may u
   (at her distance ahead, more than ``tolerance`` toward her side). A car that stopped turned
   toward her side (the barrier bent it round her estimate) and went once there was room behind her
   drove toward her first; a car along the road, or turned away, passes behind her as before.
+- **A stopped car waits where it stopped** (``settle``, ``settle_speed``): a car slower than
+  ``settle_speed`` whose stop lies less than ``settle`` ahead takes it as reached (cap 0). The stop
+  follows her estimate, which moves by tenths of a metre from step to step; a car stopped turned
+  toward a crosser was given a stop 0.2 m further ahead for one step, its cap of 1.2 m/s let it
+  accelerate, the command latency carried it to 0.75 m/s and it rolled from 4.1 to 2.2 m of her
+  (issue 34, a lane crossing with the near-field sensor).
 
 Applies to a car that follows a lane (``LaneTrackingCost``) with a ``RoadEdgeBarrier``. Without road
 edges the car may swerve round anyone (the paper's Section IV controller) and the layer is idle.
@@ -118,7 +124,10 @@ class YieldConfig:
     the distances ahead of it between which a standing person is whole in the image and
     detected, and ``view_confirm`` how long her place must have been in view, with nobody found
     there, before she is released (the camera periods its tracker needs to confirm a person, and
-    the latencies: the caution's reaction time)."""
+    the latencies: the caution's reaction time). ``settle``: a car slower than ``settle_speed``
+    whose stop lies less than ``settle`` ahead takes it as reached and waits (a stop set by her
+    estimate moves by tenths of a metre from step to step; crept up to, its speed cap lets a
+    stopped car roll toward her)."""
 
     lookahead: float = 4.0
     sample: float = 0.25
@@ -134,11 +143,14 @@ class YieldConfig:
     view_near: float = 0.0
     view_far: float = 30.0
     view_confirm: float = 0.0
+    settle: float = 0.5
+    settle_speed: float = 0.3
 
     def __post_init__(self) -> None:
         names = ("lookahead", "sample", "deceleration", "gap", "tolerance", "crossing_speed", "clear_time",
-                 "rematch", "memory", "view_forward", "view_near", "view_far", "view_confirm")  # fmt: skip
-        require_positive("yielding", self, names, zero_ok=("view_forward", "view_near", "view_confirm"))
+                 "rematch", "memory", "view_forward", "view_near", "view_far", "view_confirm", "settle",
+                 "settle_speed")  # fmt: skip
+        require_positive("yielding", self, names, zero_ok=("view_forward", "view_near", "view_confirm", "settle"))
         v = self.view_deg
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v < 180.0:
             raise ValueError(f"yielding view_deg must be in [0, 180) degrees (0: the camera's view unknown), got {v!r}")
@@ -418,6 +430,8 @@ class Yielder:
             return None
         stop_s, j = best
         room_to_stop = max(stop_s - s_car, 0.0)
+        if float(speed) < c.settle_speed and room_to_stop < c.settle:
+            room_to_stop = 0.0  # stopped just short of a stop that moves with her estimate: wait there
         cap = math.sqrt(2.0 * c.deceleration * room_to_stop)
         lane = lane_goal - lane_start
         length = float(np.hypot(*lane))
