@@ -14,7 +14,7 @@ import pytest
 
 from trustnav.perception.localisation import GroundEstimate
 from trustnav.perception.pedestrians import PedestrianEstimator
-from trustnav.perception.world_tracking import WorldTracker
+from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
 from trustnav.sim.driving import load_drive_scenario, run_drive
 from trustnav.sim.driving.episode import DriveEnvironment
 from trustnav.sim.driving.sensing import NearField
@@ -116,11 +116,63 @@ def test_a_scan_leaves_the_tracks_off_its_ground_as_they_were():
     assert np.array_equal(runs[0].mean, runs[1].mean) and np.array_equal(runs[0].covariance, runs[1].covariance)
 
 
-def test_a_return_follows_a_person_the_camera_found_and_never_starts_one():
-    """A range sensor says that something is there; only the camera says that it is a person."""
+def test_a_return_far_from_everyone_starts_a_person_of_trust_zero():
+    """A crosser the camera never showed, returned by the scans beside the car: a track of her own
+    (tentative, confirmed by the next scan), trust 0 until the camera sees her (no traits). Off
+    (``return_births``), the returns only follow the camera's people."""
     est = PedestrianEstimator()
-    assert est.add_returns(0.0, [[2.0, 0.5]], [0.15**2 * np.eye(2)], lambda xy: True) == [None]
-    assert len(est.estimates(0.0)) == 0
+    cov = [0.15**2 * np.eye(2)]
+    (tid,) = est.add_returns(0.0, [[2.0, 0.5]], cov, lambda xy: True)
+    assert tid is not None and not est.tracker.tracks[0].confirmed
+    assert est.add_returns(0.1, [[2.0, 0.6]], cov, lambda xy: True) == [tid]
+    now = est.estimates(0.1)
+    assert list(now.track_ids) == [tid] and now.trusts[0] == 0.0 and est.tracker.tracks[0].confirmed
+    off = PedestrianEstimator(tracker=WorldTrackerConfig(return_births=False))
+    assert off.add_returns(0.0, [[2.0, 0.5]], cov, lambda xy: True) == [None]
+    assert len(off.estimates(0.0)) == 0
+
+
+def test_a_second_return_beside_someone_followed_starts_nobody():
+    """Two returns at one confirmed track: one joins it, the other (inside ``return_birth_gap`` of
+    it) is a second echo of that person, not a new one; a return further off is someone else."""
+    tr = WorldTracker()
+    for k in range(3):
+        (tid,) = tr.add_frame(float(k), [_placed([6.0, 2.0])])
+    cov = [0.15**2 * np.eye(2)] * 3
+    ids = tr.add_returns(2.5, [[6.0, 2.0], [6.0, 3.5], [6.0, 5.0]], cov, lambda xy: True)
+    assert ids[0] == tid and ids[1] is None and ids[2] not in (None, tid)
+    assert len(tr.tracks) == 2
+
+
+def test_a_track_only_the_sensor_saw_goes_once_it_stops_seeing_it():
+    """Out of the sensor's field, nothing says where a person only its returns showed is: her track
+    goes after ``keep_seconds`` unseen, at the next scan (which covers neither person: the camera's
+    is left as it is) or the next frame (which sees the camera's person only)."""
+    for by_frame in (False, True):
+        tr = WorldTracker()
+        tr.add_frame(0.0, [_placed([30.0, 8.0])])
+        tr.add_frame(1.0, [_placed([30.0, 8.0])])  # the camera's person, confirmed
+        for t in (1.0, 1.1):  # the sensor's person, confirmed
+            tr.add_returns(t, [[2.0, 0.5]], [0.15**2 * np.eye(2)], lambda xy: float(np.hypot(*xy)) <= 10.0)
+        assert len(tr.tracks) == 2
+
+        def look(tr: WorldTracker, t: float, by_frame: bool = by_frame) -> None:
+            if by_frame:
+                tr.add_frame(t, [_placed([30.0, 8.0])])
+            else:  # the car turned away: its field covers neither
+                tr.add_returns(t, np.zeros((0, 2)), np.zeros((0, 2, 2)), lambda xy: False)
+
+        for t in (2.0, 3.0, 3.5):
+            look(tr, t)
+        assert len(tr.tracks) == 2  # 2.4 s unseen: kept
+        look(tr, 3.7)
+        assert len(tr.tracks) == 1 and tr.tracks[0].last_placed >= 1.0  # 2.6 s: the sensor's person gone
+
+
+@pytest.mark.parametrize(("field", "value"), [("return_births", 1), ("return_birth_gap", -0.5)])
+def test_a_bad_return_birth_option_names_itself(field, value):
+    with pytest.raises(ValueError, match=field):
+        WorldTrackerConfig(**{field: value})
 
 
 def test_scans_reach_the_tracker_at_their_own_rate_in_time_order_with_late_frames():
@@ -217,5 +269,38 @@ def test_a_waiting_car_does_not_creep_toward_the_crosser_it_sees_beside_it(repo_
         sc = lc.variant(base, rng)
     world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
     m = run_drive(world, sensing="keypoints", seed=59, state="perceived").metrics()
+    assert m["reached_goal"] and m["road_departure_max"] == 0.0
+    assert m["pedestrians"][0]["min_distance"] >= 2.5
+
+
+@pytest.mark.slow
+def test_a_stopped_car_waits_rather_than_creeping_up_to_a_stop_that_moves(repo_root):
+    """Lane crossing run 0 (seed 7, 1 frame/s, near-field sensor): the car, stopped turned toward
+    the crosser, was given a stop 0.2 m further ahead for one step (her estimate moved); its cap let
+    it accelerate, the command latency carried it to 0.75 m/s and it rolled from 4.1 to 2.2 m of her.
+    A stopped car takes a stop that near as reached (``YieldConfig.settle``): it waits, >= R."""
+    lc = _benchmark(repo_root, "lane_crossings")
+    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
+    sc = lc.variant(base, np.random.default_rng(7))
+    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
+    m = run_drive(world, sensing="keypoints", seed=0, state="perceived").metrics()
+    assert m["reached_goal"] and m["road_departure_max"] == 0.0
+    assert m["pedestrians"][0]["min_distance"] >= 2.5
+
+
+@pytest.mark.slow
+def test_a_crosser_only_the_sensor_showed_is_yielded_to(repo_root):
+    """Lane crossing run 77 (seed 5, 1 frame/s, near-field sensor): she stands beside a car starting
+    at 3 m/s, outside the camera's view, and steps out 0.02 s in; the scans return her while the car
+    is slow, but returns started no track and the car passed her at 1.35 m. Her own track (trust 0)
+    makes the car yield: >= R, the goal reached."""
+    lc = _benchmark(repo_root, "lane_crossings")
+    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
+    rng = np.random.default_rng(5)
+    for _ in range(78):
+        sc = lc.variant(base, rng)
+    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
+    r = run_drive(world, sensing="keypoints", seed=77, state="perceived")
+    m = r.metrics()
     assert m["reached_goal"] and m["road_departure_max"] == 0.0
     assert m["pedestrians"][0]["min_distance"] >= 2.5

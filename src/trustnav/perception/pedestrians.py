@@ -115,8 +115,9 @@ class PedestrianEstimator:
         covers: Callable[[NDArray[np.float64]], bool],
     ) -> list[int | None]:
         """Fold in one scan of a near-field sensor (:meth:`WorldTracker.add_returns`): positions on
-        the ground, no traits; it follows the people the camera found (their trust goes on) and
-        never starts a track. Returns each return's world track ID (None: it joined none)."""
+        the ground, no traits; it follows the people the camera found (their trust goes on), and a
+        return far from all of them starts a track of its own (trust 0 until the camera sees the
+        person). Returns each return's world track ID (None: it joined none)."""
         ids = self.tracker.add_returns(time, positions, covariances, covers)
         self._forget_dropped()
         return ids

@@ -103,7 +103,13 @@ class WorldTrackerConfig:
     (prior sigma ``range_scale_sigma``, constant), both models carrying it. As the car approaches, a
     fixed scale moves the placements toward the camera; without the state the tracker reads that
     as walking, or, with the frames' errors inflated instead (``error_shared``), widens every
-    region for it. 0 (default): no scale state, the four-state filter."""
+    region for it. 0 (default): no scale state, the four-state filter.
+    return_births: a near-field return (:meth:`WorldTracker.add_returns`) that joins no track and
+    lies more than ``return_birth_gap`` m from every live track starts one (tentative; no traits,
+    so trust 0, the cautious default, until the camera sees the person); a track no camera frame
+    has placed is dropped once unseen for ``keep_seconds`` wherever it is (the sensor is its only
+    witness). False: returns only follow the people the camera found (issue 34: crossers the
+    camera never showed, beside a slow car, walked into its path unseen by the controller)."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
@@ -124,6 +130,8 @@ class WorldTrackerConfig:
     out_of_view_max_sigma: float = 1.5
     normalized_distance: bool = True
     range_scale_sigma: float = 0.0
+    return_births: bool = True
+    return_birth_gap: float = 2.0
 
     def __post_init__(self) -> None:
         for name, lo, hi in (
@@ -144,12 +152,14 @@ class WorldTrackerConfig:
             ("error_shared", 0.0, 1.0),
             ("pose_change", 0.0, 1.0),
             ("range_scale_sigma", 0.0, 0.5),
+            ("return_birth_gap", 0.0, 100.0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {v!r}")
-        if not isinstance(self.normalized_distance, bool):
-            raise ValueError(f"normalized_distance must be true or false, got {self.normalized_distance!r}")
+        for name in ("normalized_distance", "return_births"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if isinstance(self.confirm_hits, bool) or not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
             raise ValueError(f"confirm_hits must be an integer >= 1, got {self.confirm_hits!r}")
 
@@ -395,11 +405,13 @@ class WorldTracker:
         take part: they are associated and corrected as with a frame's estimates (the same gates,
         the same "started walking" hypothesis), and a tentative one the scan missed, or a confirmed
         one unseen for ``keep_seconds``, is dropped (nobody stands where the sensor looks and finds
-        nobody); every other track is left as it is, to the camera's frames. A return that joins no
-        track is dropped, never born as one: a range sensor says that something is there, only the
-        camera says that it is a person (and gives the traits trust needs). A return is not
-        a camera placement: it shares none of a placement's correlated error, box or pose.
-        Returns each return's track ID (None: it joined none)."""
+        nobody); every other track is left as it is, to the camera's frames, except one no frame
+        has placed, dropped once unseen for ``keep_seconds`` wherever it is. A return that joins no
+        track starts one if it lies more than ``return_birth_gap`` m from every live track
+        (``return_births``; a person the camera never showed: no traits, trust 0 until it does),
+        else it is dropped (a second return of someone followed). A return is not a camera
+        placement: it shares none of a placement's correlated error, box or pose. Returns each
+        return's track ID (None: it joined none)."""
         pos = np.asarray(positions, dtype=float).reshape(-1, 2)
         cov = np.asarray(covariances, dtype=float).reshape(-1, 2, 2)
         if len(cov) != len(pos) or not (np.isfinite(pos).all() and np.isfinite(cov).all()):
@@ -517,13 +529,18 @@ class WorldTracker:
                 ids[i] = t.track_id
                 taken_t.add(a)
         missed = [t for a, t in enumerate(pool) if a not in taken_t]
-        for i in idx if placed else ():  # a return joins a person's track; it never makes one
+        births = placed or cfg.return_births
+        others = [] if placed or not births else [self._predict_track(t, time)[0][:2] for t in self.tracks]
+        for i in idx if births else ():
             if ids[i] is None:
                 e = estimates[i]
                 assert e is not None
+                if any(math.dist(e.position, q) <= cfg.return_birth_gap for q in others):
+                    continue  # a return beside someone followed is theirs, not a new person
                 ids[i] = self._birth(e, time, None if boxes is None else boxes[i], cam_xy, placed)
         if covers is not None:  # a scan: deletions inside the ground it covers only
             gone = [t for t in missed if not t.confirmed or time - t.last_seen > cfg.keep_seconds]
+            gone += [t for t in self.tracks if t not in gone and self._unwitnessed(t, time)]
             self.tracks = [t for t in self.tracks if t not in gone]
             self._history(time)
             return ids
@@ -535,7 +552,7 @@ class WorldTracker:
             sigma = math.sqrt(max(np.linalg.eigvalsh(t.covariance[:2, :2])[-1], 0.0))
             if t in missed and not t.confirmed:
                 continue
-            if sigma > cfg.max_sigma:
+            if sigma > cfg.max_sigma or self._unwitnessed(t, time):
                 continue
             if unseen > 0.0 and camera is not None:
                 xy = t.mean[:2] if to_world is None else np.asarray(to_world).T @ t.mean[:2]
@@ -566,6 +583,11 @@ class WorldTracker:
         self.tracks = keep
         self._history(time)
         return ids
+
+    def _unwitnessed(self, t: WorldTrack, time: float) -> bool:
+        """A track only the near-field sensor has seen (no frame placed it) and that it has not
+        seen for ``keep_seconds``: out of its field nothing says where, or whether, the person is."""
+        return t.last_placed == -math.inf and time - t.last_seen > self.config.keep_seconds
 
     def _history(self, time: float) -> None:
         """Each track seen at ``time``: its mean then in its history (once per time)."""
