@@ -237,21 +237,24 @@ def test_a_texter_lost_from_view_is_seen_by_the_near_field_and_passed_not_waited
         assert m["reached_goal"] and m["pedestrians"][0]["min_distance"] >= 2.5 and m["road_departure_max"] == 0.0
 
 
+def _lane_crossing(repo_root, seed: int, run: int, near: float) -> dict:
+    """Run ``run`` of ``lane_crossings.py --seed seed`` (1 frame/s) with ``near`` m of near-field sensor."""
+    lc = _benchmark(repo_root, "lane_crossings")
+    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
+    rng = np.random.default_rng(seed)
+    for _ in range(run + 1):
+        sc = lc.variant(base, rng)
+    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=near))
+    return run_drive(world, sensing="keypoints", seed=run, state="perceived").metrics()
+
+
 @pytest.mark.slow
 def test_a_crosser_who_walks_in_front_of_the_bumper_is_seen_leave(repo_root):
     """Lane crossing run 42 (seed 0, 1 frame/s): the crosser walks across in front of the stopped
     car, below its camera's image, and off to the far kerb, outside its view. The camera alone
     never sees her leave and the car waits out the drive; with a near-field sensor it waits while
     she crosses and goes once she is R beyond the road's edge."""
-    lc = _benchmark(repo_root, "lane_crossings")
-    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
-    rng = np.random.default_rng(0)
-    for _ in range(43):
-        sc = lc.variant(base, rng)
-    out = {}
-    for near in (0.0, 10.0):
-        world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=near))
-        out[near] = run_drive(world, sensing="keypoints", seed=42, state="perceived").metrics()
+    out = {near: _lane_crossing(repo_root, 0, 42, near) for near in (0.0, 10.0)}
     assert not out[0.0]["reached_goal"]
     assert out[10.0]["reached_goal"] and out[10.0]["road_departure_max"] == 0.0
 
@@ -262,13 +265,7 @@ def test_a_waiting_car_does_not_creep_toward_the_crosser_it_sees_beside_it(repo_
     where the crosser walks; a yield that flickered off for one step left a plan that accelerates,
     and the fallbacks of the next steps applied it above the yield's cap, the car creeping toward
     her to 1.36 m. The fallback held under the speed rows, it waits and passes at >= R."""
-    lc = _benchmark(repo_root, "lane_crossings")
-    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
-    rng = np.random.default_rng(8)
-    for _ in range(60):
-        sc = lc.variant(base, rng)
-    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
-    m = run_drive(world, sensing="keypoints", seed=59, state="perceived").metrics()
+    m = _lane_crossing(repo_root, 8, 59, 10.0)
     assert m["reached_goal"] and m["road_departure_max"] == 0.0
     assert m["pedestrians"][0]["min_distance"] >= 2.5
 
@@ -279,11 +276,7 @@ def test_a_stopped_car_waits_rather_than_creeping_up_to_a_stop_that_moves(repo_r
     the crosser, was given a stop 0.2 m further ahead for one step (her estimate moved); its cap let
     it accelerate, the command latency carried it to 0.75 m/s and it rolled from 4.1 to 2.2 m of her.
     A stopped car takes a stop that near as reached (``YieldConfig.settle``): it waits, >= R."""
-    lc = _benchmark(repo_root, "lane_crossings")
-    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
-    sc = lc.variant(base, np.random.default_rng(7))
-    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
-    m = run_drive(world, sensing="keypoints", seed=0, state="perceived").metrics()
+    m = _lane_crossing(repo_root, 7, 0, 10.0)
     assert m["reached_goal"] and m["road_departure_max"] == 0.0
     assert m["pedestrians"][0]["min_distance"] >= 2.5
 
@@ -294,13 +287,6 @@ def test_a_crosser_only_the_sensor_showed_is_yielded_to(repo_root):
     at 3 m/s, outside the camera's view, and steps out 0.02 s in; the scans return her while the car
     is slow, but returns started no track and the car passed her at 1.35 m. Her own track (trust 0)
     makes the car yield: >= R, the goal reached."""
-    lc = _benchmark(repo_root, "lane_crossings")
-    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
-    rng = np.random.default_rng(5)
-    for _ in range(78):
-        sc = lc.variant(base, rng)
-    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=10.0))
-    r = run_drive(world, sensing="keypoints", seed=77, state="perceived")
-    m = r.metrics()
+    m = _lane_crossing(repo_root, 5, 77, 10.0)
     assert m["reached_goal"] and m["road_departure_max"] == 0.0
     assert m["pedestrians"][0]["min_distance"] >= 2.5
