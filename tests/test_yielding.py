@@ -223,11 +223,29 @@ def test_the_stop_is_on_the_lane_and_the_cap_brakes_there():
     assert d.stop[1] == 0.0 and 0.0 < d.stop[0] <= 10.0
 
 
+def test_a_stopped_car_takes_a_stop_just_ahead_as_reached():
+    """A stop 0.3 m ahead (her estimate moved): a car that stands waits there (cap 0); one still
+    rolling at 1 m/s, or any car with ``settle`` 0, is capped to brake in those 0.3 m."""
+    ped = (3.5 + 0.3, 0.0)  # the stop R + gap = 3.5 m short of her: 0.3 m ahead of the car at 0
+    stands = _decide(ped, (0.0, 0.0), speed=0.1)
+    assert stands.speed_cap == 0.0 and stands.note.startswith("yielding: waiting")
+    rolls = _decide(ped, (0.0, 0.0), speed=1.0)
+    assert rolls.speed_cap == pytest.approx(math.sqrt(2 * 3.0 * 0.3)) and "stopping 0.3 m ahead" in rolls.note
+    exact = Yielder(YieldConfig(settle=0.0)).decide(
+        np.zeros(2), 0.1, pedestrians=np.array([ped]), velocities=np.zeros((1, 2)), radii=R, **ROAD
+    )
+    assert exact.speed_cap == pytest.approx(rolls.speed_cap)
+
+
 def test_yield_config_is_validated():
     with pytest.raises(ValueError, match="lookahead"):
         YieldConfig(lookahead=0.0)
     with pytest.raises(ValueError, match="deceleration"):
         YieldConfig(deceleration=float("inf"))
+    with pytest.raises(ValueError, match=r"settle must be a finite number >= 0, got -0\.5"):
+        YieldConfig(settle=-0.5)
+    with pytest.raises(ValueError, match="settle_speed must be a positive"):
+        YieldConfig(settle_speed=0.0)
 
 
 NOBODY = np.zeros((0, 2))
