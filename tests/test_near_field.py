@@ -169,6 +169,22 @@ def test_a_track_only_the_sensor_saw_goes_once_it_stops_seeing_it():
         assert len(tr.tracks) == 1 and tr.tracks[0].last_placed >= 1.0  # 2.6 s: the sensor's person gone
 
 
+def test_a_frame_that_misses_a_person_only_the_sensor_found_leaves_her_to_the_scans():
+    """The camera may not see where a return was (beside the car): a frame between two scans does not
+    drop her tentative track, the next scan confirms it; a tentative track the camera started and
+    its next frame missed is dropped (a logo boxed once)."""
+    tr = WorldTracker()
+    cov = [0.15**2 * np.eye(2)]
+    (tid,) = tr.add_returns(0.0, [[2.0, 0.5]], cov, lambda xy: True)
+    tr.add_frame(0.05, [])
+    assert [t.track_id for t in tr.tracks] == [tid]
+    assert tr.add_returns(0.1, [[2.0, 0.55]], cov, lambda xy: True) == [tid] and tr.tracks[0].confirmed
+    cam = WorldTracker()
+    cam.add_frame(0.0, [_placed([8.0, 0.0])])
+    cam.add_frame(0.1, [])
+    assert cam.tracks == []
+
+
 @pytest.mark.parametrize(("field", "value"), [("return_births", 1), ("return_birth_gap", -0.5)])
 def test_a_bad_return_birth_option_names_itself(field, value):
     with pytest.raises(ValueError, match=field):
@@ -237,15 +253,16 @@ def test_a_texter_lost_from_view_is_seen_by_the_near_field_and_passed_not_waited
         assert m["reached_goal"] and m["pedestrians"][0]["min_distance"] >= 2.5 and m["road_departure_max"] == 0.0
 
 
-def _lane_crossing(repo_root, seed: int, run: int, near: float) -> dict:
-    """Run ``run`` of ``lane_crossings.py --seed seed`` (1 frame/s) with ``near`` m of near-field sensor."""
+def _lane_crossing(repo_root, seed: int, run: int, near: float, rate: float | None = None) -> dict:
+    """Run ``run`` of ``lane_crossings.py --seed seed [--rate rate]`` (the scenario's 1 frame/s by
+    default) with ``near`` m of near-field sensor."""
     lc = _benchmark(repo_root, "lane_crossings")
     base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
     rng = np.random.default_rng(seed)
     for _ in range(run + 1):
         sc = lc.variant(base, rng)
     world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=near))
-    return run_drive(world, sensing="keypoints", seed=run, state="perceived").metrics()
+    return run_drive(world, sensing="keypoints", seed=run, state="perceived", capture_rate=rate).metrics()
 
 
 @pytest.mark.slow
@@ -282,11 +299,13 @@ def test_a_stopped_car_waits_rather_than_creeping_up_to_a_stop_that_moves(repo_r
 
 
 @pytest.mark.slow
-def test_a_crosser_only_the_sensor_showed_is_yielded_to(repo_root):
-    """Lane crossing run 77 (seed 5, 1 frame/s, near-field sensor): she stands beside a car starting
-    at 3 m/s, outside the camera's view, and steps out 0.02 s in; the scans return her while the car
-    is slow, but returns started no track and the car passed her at 1.35 m. Her own track (trust 0)
-    makes the car yield: >= R, the goal reached."""
-    m = _lane_crossing(repo_root, 5, 77, 10.0)
+@pytest.mark.parametrize("rate", [None, 10.0])
+def test_a_crosser_only_the_sensor_showed_is_yielded_to(repo_root, rate):
+    """Lane crossing run 77 (seed 5, 1 and 10 frames/s, near-field sensor): she stands beside a car
+    starting at 3 m/s, outside the camera's view, and steps out 0.02 s in; the scans return her
+    while the car is slow, but returns started no track and the car passed her at 1.35 m. Her own
+    track (trust 0) makes the car yield: >= R, the goal reached. At 10 frames/s each frame between
+    two scans dropped her tentative track (1.77 m): only the scans judge a track only they found."""
+    m = _lane_crossing(repo_root, 5, 77, 10.0, rate)
     assert m["reached_goal"] and m["road_departure_max"] == 0.0
     assert m["pedestrians"][0]["min_distance"] >= 2.5

@@ -107,8 +107,9 @@ class WorldTrackerConfig:
     return_births: a near-field return (:meth:`WorldTracker.add_returns`) that joins no track and
     lies more than ``return_birth_gap`` m from every live track starts one (tentative; no traits,
     so trust 0, the cautious default, until the camera sees the person); a track no camera frame
-    has placed is dropped once unseen for ``keep_seconds`` wherever it is (the sensor is its only
-    witness). False: returns only follow the people the camera found (issue 34: crossers the
+    has placed is judged by the scans (a frame that misses it, tentative, does not drop it: the
+    camera may not see that ground) and dropped once unseen for ``keep_seconds`` wherever it is
+    (the sensor is its only witness). False: returns only follow the people the camera found (issue 34: crossers the
     camera never showed, beside a slow car, walked into its path unseen by the controller)."""
 
     accel_psd: float = 0.25
@@ -550,8 +551,8 @@ class WorldTracker:
         for t in self.tracks:
             unseen = time - t.last_seen
             sigma = math.sqrt(max(np.linalg.eigvalsh(t.covariance[:2, :2])[-1], 0.0))
-            if t in missed and not t.confirmed:
-                continue
+            if t in missed and not t.confirmed and t.last_placed > -math.inf:
+                continue  # (one only the near-field sensor found is the scans' to judge)
             if sigma > cfg.max_sigma or self._unwitnessed(t, time):
                 continue
             if unseen > 0.0 and camera is not None:
