@@ -109,8 +109,9 @@ class WorldTrackerConfig:
     so trust 0, the cautious default, until the camera sees the person); a track no camera frame
     has placed is judged by the scans (a frame that misses it, tentative, does not drop it: the
     camera may not see that ground) and dropped once unseen for ``keep_seconds`` wherever it is
-    (the sensor is its only witness). False: returns only follow the people the camera found (issue 34: crossers the
-    camera never showed, beside a slow car, walked into its path unseen by the controller)."""
+    (the sensor is its only witness). False: returns only follow the people the camera found
+    (issue 34: crossers the camera never showed, beside a slow car, walked into its path unseen
+    by the controller)."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
