@@ -532,7 +532,9 @@ class WorldTracker:
                 taken_t.add(a)
         missed = [t for a, t in enumerate(pool) if a not in taken_t]
         births = placed or cfg.return_births
-        others = [] if placed or not births else [self._predict_track(t, time)[0][:2] for t in self.tracks]
+        unjoined = births and not placed and any(ids[i] is None for i in idx)
+        # where every followed person is now: only a scan with a return that joined nobody needs it
+        others = [self._predict_track(t, time)[0][:2] for t in self.tracks] if unjoined else []
         for i in idx if births else ():
             if ids[i] is None:
                 e = estimates[i]
