@@ -23,6 +23,7 @@ moved with her ahead within R of its heading line (:func:`stop_and_go`).
     python benchmarks/lane_crossings.py --set caution_occlusion=false  # the tracker's regions alone
     python benchmarks/lane_crossings.py --wait --rate 10   # the scenario's own attentive crossing, seeds 0-4
     python benchmarks/lane_crossings.py --near-range 10    # with a near-field sensor around the car's front
+    python benchmarks/lane_crossings.py --near-range 10 --near-clutter 1   # it also returns poles, bins: 1 per 10 m
 
 ``--wait`` drives the scenario file itself, the crosser attentive (``trustnav drive
 examples/scenarios/lane-crossing.toml --attentive --sensing keypoints --seed S``), with perceived and
@@ -206,8 +207,21 @@ def main() -> None:
     ap.add_argument("--set", nargs="*", default=[], help="[control] options, e.g. caution_pass_speed=3")
     ap.add_argument("--only", type=int, nargs="+", help="drive only these runs (their worlds as in the full set)")
     ap.add_argument("--json", help="write every run's summary to this file")
-    ap.add_argument("--near-range", type=float, help="[sensing] near_range, m: a near-field sensor (default: none)")
-    ap.add_argument("--near-max-speed", type=float, help="[sensing] near_max_speed, m/s (default: at any speed)")
+    ap.add_argument(
+        "--near-range",
+        type=float,
+        help="[sensing] near_range, m: a near-field sensor (default: the file's, none)",
+    )
+    ap.add_argument(
+        "--near-max-speed",
+        type=float,
+        help="[sensing] near_max_speed, m/s: it scans up to this speed (default: 3; inf: at any speed)",
+    )
+    ap.add_argument(
+        "--near-clutter",
+        type=float,
+        help="[sensing] near_clutter: objects per 10 m of sidewalk it returns (default: 0)",
+    )
     ap.add_argument("--wait", action="store_true", help="the scenario's own attentive crossing, seeds 0-4 (--runs)")
     args = ap.parse_args()
     if args.runs < 1:
@@ -215,15 +229,14 @@ def main() -> None:
     if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
         ap.error(f"--rate {args.rate}: expected camera frames per second > 0")
     base = load_drive_scenario(ROOT / "examples" / "scenarios" / "lane-crossing.toml")
-    if args.near_range is not None:
-        if not 0 <= args.near_range <= 30:
-            ap.error(f"--near-range {args.near_range:g}: expected metres in [0, 30]")
-        near = {"near_range": args.near_range}
-        if args.near_max_speed is not None:  # the park-assist gate (default 3 m/s); inf: at any speed
-            if not args.near_max_speed >= 0:
-                ap.error(f"--near-max-speed {args.near_max_speed:g}: expected m/s >= 0 (inf: at any speed)")
-            near["near_max_speed"] = args.near_max_speed
-        base = dataclasses.replace(base, sensing=dataclasses.replace(base.sensing, **near))
+    if args.near_range is not None and not 0 <= args.near_range <= 30:
+        ap.error(f"--near-range {args.near_range:g}: expected metres in [0, 30]")
+    if args.near_max_speed is not None and not args.near_max_speed >= 0:  # the park-assist gate; inf: any speed
+        ap.error(f"--near-max-speed {args.near_max_speed:g}: expected m/s >= 0 (inf: at any speed)")
+    if args.near_clutter is not None and not 0 <= args.near_clutter <= 20:
+        ap.error(f"--near-clutter {args.near_clutter:g}: expected objects per 10 m of sidewalk in [0, 20]")
+    near = {"near_range": args.near_range, "near_max_speed": args.near_max_speed, "near_clutter": args.near_clutter}
+    base = base.with_options(sensing=near)
     if args.wait:
         wait(base, args.rate, min(args.runs, 5))
         return

@@ -94,11 +94,11 @@ def _case_runs(
     only: bool | None = None,
     vary: bool = False,
     near_range: float | None = None,
+    near_clutter: float | None = None,
     **kw,
 ) -> list[dict]:
-    sc = load_drive_scenario(name)
-    if near_range is not None:  # a near-field sensor beside the camera (the presets: none, the paper's)
-        sc = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=near_range))
+    # a near-field sensor beside the camera (the presets: none, the paper's), and what else it returns
+    sc = load_drive_scenario(name).with_options(sensing={"near_range": near_range, "near_clutter": near_clutter})
     if error_correlation is not None:  # the world tracker's error_correlation_s (calibration)
         sc = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, error_correlation_s=error_correlation))
     if caution is not None:  # the trust-aware speed bound on or off (the presets: off, the paper's)
@@ -214,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--error-correlation", type=float, help="[sensing] error_correlation_s (default: the presets')")
     ap.add_argument("--near-range", type=float, help="[sensing] near_range, m: a near-field sensor (default: none)")
+    ap.add_argument("--near-clutter", type=float, help="[sensing] near_clutter: objects per 10 m of sidewalk")
     args = ap.parse_args(argv)
     caution = None if args.caution is None else args.caution == "on"
     if not 1 <= args.seeds <= 1000:
@@ -226,13 +227,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--rate must be in (0, 60] frames per second, got {args.rate:g}")
     if args.near_range is not None and not 0 <= args.near_range <= 30:
         ap.error(f"--near-range must be in [0, 30] m, got {args.near_range:g}")
+    if args.near_clutter is not None and not 0 <= args.near_clutter <= 20:
+        ap.error(f"--near-clutter must be in [0, 20] objects per 10 m of sidewalk, got {args.near_clutter:g}")
     rows = []
     t0 = time.perf_counter()
     for name, gap in () if args.skip_keypoints else (("case-1", 1.0), ("case-2", 0.5)):
         seeds = range(args.first_seed, args.first_seed + args.seeds)
         runs = _case_runs(name, seeds, args.state, caution=caution, capture_rate=args.rate,
                           error_correlation=args.error_correlation, vary=args.vary,
-                          near_range=args.near_range)  # fmt: skip
+                          near_range=args.near_range, near_clutter=args.near_clutter)  # fmt: skip
         rows.append(summarise(name, runs, gap))
     if args.render:
         from trustnav.sim.driving.sensing import make_render_sensing
@@ -248,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
                         entries += _case_runs(name, range(seed, seed + 1), args.state, "render", caution=caution,
                                               renderer=renderer, pipeline=pipeline, capture_rate=args.rate,
                                               error_correlation=args.error_correlation, only=att,
-                                              vary=args.vary, near_range=args.near_range)  # fmt: skip
+                                              vary=args.vary, near_range=args.near_range,
+                                              near_clutter=args.near_clutter)  # fmt: skip
                     finally:
                         renderer.close()
                         pipeline.backend.close()

@@ -16,6 +16,7 @@ departure, the time to the goal and the median solve time.
     python benchmarks/step_out.py --seeds 20 --rate 10
     python benchmarks/step_out.py --sensing render --seeds 1 --only step-out
     python benchmarks/step_out.py --near-range 10        # with a near-field sensor around the car's front
+    python benchmarks/step_out.py --near-range 10 --near-clutter 1  # it also returns poles, bins: 1 per 10 m
 """
 
 from __future__ import annotations
@@ -63,8 +64,8 @@ def step_out(base, seed: int, pose: str = "texting", stays: bool = False, free: 
 
 def run(args: argparse.Namespace) -> dict:
     base = load_drive_scenario(ROOT / "examples/scenarios/step-out.toml")
-    if args.near_range is not None:  # a near-field sensor beside the camera (the scenario's: none)
-        base = dataclasses.replace(base, sensing=dataclasses.replace(base.sensing, near_range=args.near_range))
+    # None: the file's (no near-field sensor, no clutter)
+    base = base.with_options(sensing={"near_range": args.near_range, "near_clutter": args.near_clutter})
     renderer = pipeline = None
     if args.sensing == "render":
         from trustnav.sim.driving import make_render_sensing
@@ -174,10 +175,21 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="write every run's numbers here")
     ap.add_argument("--figure", type=Path, default=None, help="only draw speed over time (seed 0) to this PNG")
     ap.add_argument("--solve-time", action="store_true", help="only the median step time, caution on and off")
-    ap.add_argument("--near-range", type=float, help="[sensing] near_range, m: a near-field sensor (default: none)")
+    ap.add_argument(
+        "--near-range",
+        type=float,
+        help="[sensing] near_range, m: a near-field sensor (default: the file's, none)",
+    )
+    ap.add_argument(
+        "--near-clutter",
+        type=float,
+        help="[sensing] near_clutter: objects per 10 m of sidewalk it returns (default: 0)",
+    )
     args = ap.parse_args()
     if args.near_range is not None and not 0 <= args.near_range <= 30:
         ap.error(f"--near-range {args.near_range:g}: expected metres in [0, 30]")
+    if args.near_clutter is not None and not 0 <= args.near_clutter <= 20:
+        ap.error(f"--near-clutter {args.near_clutter:g}: expected objects per 10 m of sidewalk in [0, 20]")
     if args.seeds < 1:
         ap.error(f"--seeds {args.seeds}: expected a whole number of seeds >= 1")
     if not (math.isfinite(args.rate) and args.rate > 0):

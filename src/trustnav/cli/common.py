@@ -36,6 +36,7 @@ BOUNDS: dict[str, Number | Integer] = {
     "search_seconds": Number(0, 10, lo_open=True, unit=" s"),
     "perception_latency": Number(0, 5, unit=" s"),  # sim.driving.world.MAX_PERCEPTION_LATENCY (lazy imports)
     "near_range": Number(0, 30, unit=" m"),  # SensingSpec.near_range's
+    "near_clutter": Number(0, 20, unit=" objects per 10 m of sidewalk"),  # SensingSpec.near_clutter's
 }
 
 

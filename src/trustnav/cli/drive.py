@@ -90,6 +90,10 @@ def scenario_options(d: argparse.ArgumentParser) -> None:
                    help=f"a near-field sensor around the car's front (radars or ultrasonics: positions, no "
                    f"traits; it follows the people the camera found) to M metres, {span('near_range')} (default: "
                    "the scenario's [sensing] near_range, 0: none, the camera alone; docs/drive.md)")  # fmt: skip
+    p.add_argument("--near-clutter", type=float, metavar="N",
+                   help=f"objects (poles, bins) per 10 m of sidewalk that the near-field sensor returns as it "
+                   f"returns a person, {span('near_clutter')} (default: the scenario's [sensing] near_clutter, "
+                   "0: people only)")  # fmt: skip
 
 
 def drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
@@ -100,8 +104,8 @@ def drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     opt = lambda name: getattr(args, name, None)  # noqa: E731  (an option a caller's namespace lacks: not given)
     check_bounds(args, "seed", "rate", "control_rate", "port", "timeout", "fov", "camera_height", "pitch",
                  "safety_radius", "horizon", "v_max", "duration", "carla_fov", "perception_latency",
-                 "near_range")  # fmt: skip
-    caution, latency, near = opt("caution"), opt("perception_latency"), opt("near_range")
+                 "near_range", "near_clutter")  # fmt: skip
+    caution, latency, near, clutter = opt("caution"), opt("perception_latency"), opt("near_range"), opt("near_clutter")
     return load_drive_scenario(args.case).with_options(
         opt("duration"), camera={"fov_deg": opt("fov"), "up": opt("camera_height"), "pitch_deg": opt("pitch")},
         control={"safety_radius": opt("safety_radius"), "horizon": opt("horizon"), "reference_v_max": opt("v_max"),
@@ -109,7 +113,8 @@ def drive_scenario(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         carla={"town": opt("town"), "fov_deg": opt("carla_fov"), "attentive_walker": _walker(opt("attentive_walker")),
                "distracted_walker": _walker(opt("distracted_walker"))},
         sensing={"perception_latency": None if latency is None else float(latency),
-                 "near_range": None if near is None else float(near)})  # fmt: skip
+                 "near_range": None if near is None else float(near),
+                 "near_clutter": None if clutter is None else float(clutter)})  # fmt: skip
 
 
 def _walker(v: str | None) -> int | str | None:

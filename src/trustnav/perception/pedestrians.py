@@ -117,7 +117,9 @@ class PedestrianEstimator:
         """Fold in one scan of a near-field sensor (:meth:`WorldTracker.add_returns`): positions on
         the ground, no traits; it follows the people the camera found (their trust goes on), and a
         return far from all of them starts a track of its own (trust 0 until the camera sees the
-        person). Returns each return's world track ID (None: it joined none)."""
+        person), unless the camera has looked there and found no person (an object: a pole, a bin;
+        ``WorldTrackerConfig.clear_frames``). Returns each return's world track ID (None: it joined
+        none)."""
         ids = self.tracker.add_returns(time, positions, covariances, covers)
         self._forget_dropped()
         return ids

@@ -36,8 +36,9 @@ identity survives frames that are a second apart and people who leave the view f
   the car may drive into them, is kept).
 
 :meth:`WorldTracker.add_returns` folds in a near-field sensor's scan (positions on the ground, no
-image): its returns join the tracks on the ground it looks at, never start one, and a track there
-that it does not find is dropped.
+image): its returns join the tracks on the ground it looks at, one far from every track starts one
+(no traits: trust 0), except on ground the camera cleared (a frame looked there and found no
+person: a pole, a bin), and a track there that it does not find is dropped.
 
 :meth:`WorldTracker.predict` gives every live track's mean and covariance at any time (the
 controller's rate is not the camera's).
@@ -46,6 +47,7 @@ controller's rate is not the camera's).
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -111,7 +113,15 @@ class WorldTrackerConfig:
     camera may not see that ground) and dropped once unseen for ``keep_seconds`` wherever it is
     (the sensor is its only witness). False: returns only follow the people the camera found
     (issue 34: crossers the camera never showed, beside a slow car, walked into its path unseen
-    by the controller)."""
+    by the controller).
+    clear_frames: only the camera says what is a person, and what is not: a track only the
+    near-field sensor found, missed by ``clear_frames`` frames that looked where it is (a person
+    standing anywhere in its 2-sigma region, half a metre either side, wholly inside the image and
+    more than a metre ahead), is an object that returns like a person (a pole, a bin); it is
+    dropped and its ground is cleared: a return within ``clear_radius`` m of cleared ground starts
+    no track (it may still join one: a person followed walking past it; the latest 256 cleared
+    places are kept). 0: the camera clears nothing (a sensor's clutter is a person of trust 0 for
+    as long as the sensor sees it)."""
 
     accel_psd: float = 0.25
     standing_psd: float = 0.005
@@ -134,6 +144,8 @@ class WorldTrackerConfig:
     range_scale_sigma: float = 0.0
     return_births: bool = True
     return_birth_gap: float = 2.0
+    clear_frames: int = 1
+    clear_radius: float = 0.75
 
     def __post_init__(self) -> None:
         for name, lo, hi in (
@@ -155,6 +167,7 @@ class WorldTrackerConfig:
             ("pose_change", 0.0, 1.0),
             ("range_scale_sigma", 0.0, 0.5),
             ("return_birth_gap", 0.0, 100.0),
+            ("clear_radius", 0.0, 100.0),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
@@ -164,6 +177,8 @@ class WorldTrackerConfig:
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if isinstance(self.confirm_hits, bool) or not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
             raise ValueError(f"confirm_hits must be an integer >= 1, got {self.confirm_hits!r}")
+        if isinstance(self.clear_frames, bool) or not isinstance(self.clear_frames, int) or self.clear_frames < 0:
+            raise ValueError(f"clear_frames must be an integer >= 0 (0: clears nothing), got {self.clear_frames!r}")
 
 
 @dataclass(frozen=True)
@@ -207,6 +222,7 @@ class WorldTrack:
     box: NDArray[np.float64] | None = None
     shape: NDArray[np.float64] | None = None  # the pose of its last frame (GroundEstimate.shape)
     confirmed: bool = False
+    looks: int = 0  # frames that looked where it is and found nobody (only for one no frame placed)
     history: list[tuple[float, NDArray[np.float64]]] = field(default_factory=list, repr=False)
 
     @property
@@ -368,6 +384,8 @@ class WorldTracker:
         self.tracks: list[WorldTrack] = []
         self.time = -math.inf
         self._next_id = 0
+        # ground where the camera saw an object, not a person (the latest 256: a drive passes them by)
+        self.cleared: deque[NDArray[np.float64]] = deque(maxlen=256)
 
     def _predict_track(self, t: WorldTrack, time: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Combined mean and covariance of ``t`` predicted to ``time`` (the track unchanged)."""
@@ -410,8 +428,9 @@ class WorldTracker:
         nobody); every other track is left as it is, to the camera's frames, except one no frame
         has placed, dropped once unseen for ``keep_seconds`` wherever it is. A return that joins no
         track starts one if it lies more than ``return_birth_gap`` m from every live track
-        (``return_births``; a person the camera never showed: no traits, trust 0 until it does),
-        else it is dropped (a second return of someone followed). A return is not a camera
+        (``return_births``; a person the camera never showed: no traits, trust 0 until it does)
+        and from ground the camera cleared (``clear_frames``: an object, not a person), else it is
+        dropped (a second return of someone followed). A return is not a camera
         placement: it shares none of a placement's correlated error, box or pose. Returns each
         return's track ID (None: it joined none)."""
         pos = np.asarray(positions, dtype=float).reshape(-1, 2)
@@ -541,6 +560,8 @@ class WorldTracker:
                 assert e is not None
                 if any(math.dist(e.position, q) <= cfg.return_birth_gap for q in others):
                     continue  # a return beside someone followed is theirs, not a new person
+                if not placed and any(math.dist(e.position, q) <= cfg.clear_radius for q in self.cleared):
+                    continue  # an object the camera looked at (clear_frames)
                 ids[i] = self._birth(e, time, None if boxes is None else boxes[i], cam_xy, placed)
         if covers is not None:  # a scan: deletions inside the ground it covers only
             gone = [t for t in missed if not t.confirmed or time - t.last_seen > cfg.keep_seconds]
@@ -557,6 +578,8 @@ class WorldTracker:
             if t in missed and not t.confirmed and t.last_placed > -math.inf:
                 continue  # (one only the near-field sensor found is the scans' to judge)
             if sigma > cfg.max_sigma or self._unwitnessed(t, time):
+                continue
+            if t in missed and self._cleared_by(t, sigma, camera, to_world):
                 continue
             if unseen > 0.0 and camera is not None:
                 xy = t.mean[:2] if to_world is None else np.asarray(to_world).T @ t.mean[:2]
@@ -587,6 +610,30 @@ class WorldTracker:
         self.tracks = keep
         self._history(time)
         return ids
+
+    def _cleared_by(
+        self, t: WorldTrack, sigma: float, camera: CameraPose | None, to_world: NDArray[np.float64] | None
+    ) -> bool:
+        """A frame by ``camera`` missed ``t``: if no frame ever placed it and this one looked where
+        it is (``clear_frames``), one look more; at ``clear_frames`` looks its ground is cleared."""
+        n = self.config.clear_frames
+        if n == 0 or camera is None or t.last_placed > -math.inf:
+            return False
+        xy = t.mean[:2] if to_world is None else np.asarray(to_world).T @ t.mean[:2]
+        ahead, right = np.asarray(camera.forward, dtype=float)[:2], np.asarray(camera.right, dtype=float)[:2]
+        ahead, right = ahead / np.linalg.norm(ahead), right / np.linalg.norm(right)
+        wide, deep = 0.5 + 2.0 * sigma, 2.0 * sigma
+        ground = [xy + a * wide * right + b * deep * ahead for a in (-1, 0, 1) for b in (-1, 0, 1)]
+        z = camera.position[2]
+        body = np.array([[g[0], g[1], h] for g in ground for h in (z, z - 0.8, z - 1.6)])
+        depth = camera.to_camera(body)[:, 2]
+        if not (camera.in_view(body).all() and depth.min() > 1.0):
+            return False
+        t.looks += 1
+        if t.looks < n:
+            return False
+        self.cleared.append(np.asarray(t.mean[:2], dtype=float).copy())
+        return True
 
     def _unwitnessed(self, t: WorldTrack, time: float) -> bool:
         """A track only the near-field sensor has seen (no frame placed it) and that it has not

@@ -64,6 +64,8 @@ def drive_summary(done: list[tuple[str, dict, Path]]) -> list[str]:
                   f"final trust {p['final_trust']:.2f}  frames seen {p['frames_seen']}{loc}")  # fmt: skip
         if m.get("state") == "perceived":
             near = f" and followed by a near-field sensor to {m['near_range']:g} m" if m.get("near_range") else ""
+            if near and m.get("near_clutter"):
+                near += f" (which also returns {m['near_clutter']:g} object(s) per 10 m of sidewalk)"
             lines.append(f"      pedestrians perceived by the camera{near} (--state true: the world's); "
                   f"identity switches {m.get('id_switches', 0)}")  # fmt: skip
     return lines

@@ -59,6 +59,7 @@ from trustnav.sim.driving.sensing import (
     NearField,
     NearScan,
     RenderSensor,
+    street_clutter,
 )
 from trustnav.sim.driving.world import (
     DriveScenario,
@@ -245,10 +246,13 @@ class DriveEnvironment:
             if self._given_world is not None:
                 raise ValueError(f"the {self.world.name} world cannot be reset; start a new one")
             self.world = SimWorld(sc)
-        sense_seq, input_seq, near_seq = np.random.SeedSequence(self.seed).spawn(3)
+        sense_seq, input_seq, near_seq, clutter_seq = np.random.SeedSequence(self.seed).spawn(4)
         self.rng_inputs = np.random.default_rng(input_seq)
         self.near = NearField.of(sc.sensing)  # a near-field sensor (None: the camera alone)
         self.rng_near = np.random.default_rng(near_seq)
+        self.clutter = np.zeros((0, 2))  # what else it returns: poles, bins on the sidewalks
+        if self.near is not None and sc.sensing.near_clutter > 0:
+            self.clutter = street_clutter(sc.road, sc.sensing.near_clutter, np.random.default_rng(clutter_seq))
         if self._own_sensor:
             self.sensor = KeypointSensor(sc.sensing, np.random.default_rng(sense_seq))
         assert self.sensor is not None
@@ -314,8 +318,9 @@ class DriveEnvironment:
 
     def scan(self) -> NearScan | None:
         """The near-field sensor's scan now (``SensingSpec.near_range``): the returns of the world's
-        pedestrians inside its field around the car's front; None while the car is faster than
-        the sensor's ``max_speed`` (a park-assist array: no scan in that slot)."""
+        pedestrians (and of the street's clutter, ``near_clutter``: indices from N on) inside its
+        field around the car's front; None while the car is faster than the sensor's ``max_speed``
+        (a park-assist array: no scan in that slot)."""
         if self.near is None:
             raise ValueError("this drive has no near-field sensor (SensingSpec.near_range 0)")
         self._scans += 1
@@ -323,7 +328,7 @@ class DriveEnvironment:
         ego = self.state
         if float(ego[3]) > self.near.max_speed:
             return None
-        return self.near.scan(self.time, ego, self.pedestrians()[0], self.rng_near)
+        return self.near.scan(self.time, ego, np.vstack([self.pedestrians()[0], self.clutter]), self.rng_near)
 
     def _put_scan(self) -> None:
         """A near-field scan, when one is due and taken, in flight with the frames."""
@@ -531,6 +536,7 @@ def drive_metrics(r: DriveResult) -> dict[str, Any]:
         "control_rate": sc.control.rate,
         "perception_latency": sc.sensing.perception_latency,
         "near_range": sc.sensing.near_range,
+        "near_clutter": sc.sensing.near_clutter if sc.sensing.near_range > 0 else 0.0,
         "pedestrians": peds,
         "reached_goal": bool(r.reached_goal),
         "time_to_goal": None if r.time_to_goal is None else round(float(r.time_to_goal), 3),

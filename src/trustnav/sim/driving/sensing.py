@@ -39,7 +39,7 @@ from trustnav.perception.looking import LookingModel, normalise_keypoints
 from trustnav.perception.phone import PoseGeometryPhoneClassifier, TemporalPhoneModel, phone_label
 from trustnav.perception.types import Person, box_iou
 from trustnav.sim.driving.body import Appearance, Skeleton
-from trustnav.sim.driving.world import SensingSpec, street_of
+from trustnav.sim.driving.world import RoadSpec, SensingSpec, street_of
 
 __all__ = [
     "SENSING_MODES",
@@ -53,6 +53,7 @@ __all__ = [
     "make_render_pipeline",
     "make_render_sensing",
     "projected_box",
+    "street_clutter",
 ]
 
 SENSING_MODES = ("keypoints", "render")
@@ -207,6 +208,26 @@ class NearField:
         noisy = pos[idx] + rng.normal(0.0, self.sigma, (len(idx), 2))
         cov = np.broadcast_to(self.sigma**2 * np.eye(2), (len(idx), 2, 2)).copy()
         return NearScan(float(time), np.asarray(ego, dtype=float)[:3].copy(), noisy, cov, idx, self)
+
+
+def street_clutter(road: RoadSpec, per_10m: float, rng: np.random.Generator) -> NDArray[np.float64]:
+    """Static objects on both sidewalks of ``road`` that a near-field sensor returns as it returns a
+    person (``SensingSpec.near_clutter``: poles, bins, parked bicycles; the camera's detector finds no
+    person in them): on each side a Poisson number, ``per_10m`` per 10 m of the road's length on
+    average, uniform along it and across the sidewalk (at the kerb where it has no width); (K, 2)."""
+    if not (math.isfinite(per_10m) and per_10m >= 0):
+        raise ValueError(f"near_clutter must be a finite number >= 0 per 10 m of sidewalk, got {per_10m!r}")
+    start, end = np.asarray(road.start, dtype=float), np.asarray(road.end, dtype=float)
+    length = float(np.hypot(*(end - start)))
+    along = (end - start) / length
+    left = np.array([-along[1], along[0]])
+    out = []
+    for side in (1.0, -1.0):
+        k = int(rng.poisson(per_10m * length / 10.0))
+        s = rng.uniform(0.0, length, k)
+        off = 0.5 * road.width + rng.uniform(0.0, road.sidewalk_width, k)
+        out.append(start + s[:, None] * along + (side * off)[:, None] * left)
+    return np.concatenate(out).reshape(-1, 2)
 
 
 def projected_box(camera: CameraPose, skeleton: Skeleton, pad: float = 0.04) -> NDArray[np.float64] | None:

@@ -361,11 +361,14 @@ class SensingSpec:
     each axis of a return's position), ``near_rate`` (scans per second), ``near_max_speed`` (m/s:
     it scans only while the car is this slow, as a park-assist array does: creeping and stopped,
     where the car loses whom it waits for; inf: at any speed, which the yielding layer is not
-    measured with, docs/drive.md). Each scan returns the
-    ground position of each person inside its field, no traits, stamped with its time and
-    delivered to the tracker in time order with the frames (their ``perception_latency`` too); the
-    returns follow the people the camera found (they never start a track: only the camera says
-    what is a person), and a track is dropped where the sensor looks and finds nobody
+    measured with, docs/drive.md), ``near_clutter`` (static objects per 10 m of each sidewalk that
+    it returns as it returns a person: poles, bins; placed by the seed,
+    :func:`~trustnav.sim.driving.sensing.street_clutter`; 0: none, a sensor that sees people only).
+    Each scan returns the ground position of each person (and object) inside its field, no traits,
+    stamped with its time and delivered to the tracker in time order with the frames (their
+    ``perception_latency`` too); the returns follow the people the camera found, a return far from
+    every track starts one of trust 0 (no traits until the camera sees it), and a track is dropped
+    where the sensor looks and finds nobody
     (:meth:`~trustnav.perception.world_tracking.WorldTracker.add_returns`).
     """
 
@@ -414,6 +417,7 @@ class SensingSpec:
     near_sigma: Annotated[float, Number(0, 2, lo_open=True, unit=" m")] = 0.15
     near_rate: Annotated[float, Number(0, 100, lo_open=True, unit=" scans per second")] = 10.0
     near_max_speed: Annotated[float, Number(0, finite=False, unit=" m/s", note=" (inf: at any speed)")] = 3.0
+    near_clutter: Annotated[float, Number(0, 20, unit=" objects per 10 m of sidewalk")] = 0.0
 
     def __post_init__(self) -> None:
         check_fields(self)
