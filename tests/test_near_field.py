@@ -12,13 +12,14 @@ import sys
 import numpy as np
 import pytest
 
+from trustnav.geometry import CameraPose, CameraSpec
 from trustnav.perception.localisation import GroundEstimate
 from trustnav.perception.pedestrians import PedestrianEstimator
 from trustnav.perception.world_tracking import WorldTracker, WorldTrackerConfig
 from trustnav.sim.driving import load_drive_scenario, run_drive
 from trustnav.sim.driving.episode import DriveEnvironment
-from trustnav.sim.driving.sensing import NearField
-from trustnav.sim.driving.world import SensingSpec
+from trustnav.sim.driving.sensing import NearField, street_clutter
+from trustnav.sim.driving.world import RoadSpec, SensingSpec
 
 
 def _placed(xy, sigma=0.3):
@@ -185,10 +186,88 @@ def test_a_frame_that_misses_a_person_only_the_sensor_found_leaves_her_to_the_sc
     assert cam.tracks == []
 
 
-@pytest.mark.parametrize(("field", "value"), [("return_births", 1), ("return_birth_gap", -0.5)])
+@pytest.mark.parametrize(
+    ("field", "value"), [("return_births", 1), ("return_birth_gap", -0.5), ("clear_frames", -1), ("clear_radius", "1")]
+)
 def test_a_bad_return_birth_option_names_itself(field, value):
     with pytest.raises(ValueError, match=field):
         WorldTrackerConfig(**{field: value})
+
+
+# ------------------------------------------------------------------------ clutter: poles, bins
+
+
+def test_the_streets_clutter_stands_on_its_sidewalks_as_the_seed_places_it():
+    """``near_clutter`` objects per 10 m of each sidewalk, Poisson, uniform along the road and
+    across its sidewalks; the same seed, the same street; a bad density names itself."""
+    road = RoadSpec(start=(0.0, 0.0), end=(0.0, -100.0), lane_width=3.0, lanes=2, sidewalk_width=2.0)
+    xy = street_clutter(road, 2.0, np.random.default_rng(3))
+    sides = np.array(
+        [
+            [(c[:, 0] > 0).sum(), (c[:, 0] < 0).sum()]
+            for c in (street_clutter(road, 2.0, np.random.default_rng(s)) for s in range(50))
+        ]
+    )
+    assert np.all(np.abs(sides.mean(axis=0) - 20.0) < 2.0)  # 2 per 10 m of a 100 m road: 20 a side on average
+    assert np.all((np.abs(xy[:, 0]) >= 3.0) & (np.abs(xy[:, 0]) <= 5.0))  # on the sidewalks, off the road
+    assert np.all((xy[:, 1] <= 0.0) & (xy[:, 1] >= -100.0))
+    assert np.array_equal(xy, street_clutter(road, 2.0, np.random.default_rng(3)))
+    assert street_clutter(road, 0.0, np.random.default_rng(3)).shape == (0, 2)
+    with pytest.raises(ValueError, match="near_clutter"):
+        street_clutter(road, -1.0, np.random.default_rng(3))
+    with pytest.raises(ValueError, match="near_clutter"):
+        SensingSpec(near_clutter=25.0)
+
+
+def test_the_near_field_returns_the_streets_clutter_as_it_returns_people(repo_root):
+    """A drive whose sensor returns clutter: its scans hold the objects inside the field (indices
+    from the pedestrians' count on); without clutter, the people only; a seed, one street."""
+    base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
+    n = len(base.pedestrians)
+    dense = base.with_options(sensing={"near_clutter": 5.0})
+    env = DriveEnvironment(dense, seed=1)
+    scan = env.scan()
+    assert scan is not None and (scan.indices >= n).any()
+    for k, xy in zip(scan.indices, scan.positions, strict=True):
+        if k >= n:
+            assert np.hypot(*(xy - env.clutter[k - n])) < 4 * dense.sensing.near_sigma
+    assert np.array_equal(env.clutter, DriveEnvironment(dense, seed=1).clutter)
+    plain = DriveEnvironment(base, seed=1)
+    assert plain.clutter.shape == (0, 2) and (plain.scan().indices < n).all()
+
+
+def _camera_at_origin() -> CameraPose:
+    """The lane crossing's camera, 1.7 m up at the origin, looking along +x."""
+    return CameraPose(CameraSpec(1280, 720, 70.0), np.array([0.0, 0.0, 1.7]), yaw=0.0, pitch=0.0)
+
+
+def test_the_camera_clears_an_object_that_returns_like_a_person():
+    """A return 7 m ahead starts a track of trust 0; a frame that looks there (her whole body in its
+    image) and finds nobody makes it an object: the track goes and its ground is cleared, so its
+    next returns start nothing, while a return 3 m from it is someone else. Beside the camera's view
+    a frame says nothing; a track the camera placed is never cleared; ``clear_frames`` 0 clears
+    nothing."""
+    cov = [0.15**2 * np.eye(2)]
+    everywhere = lambda xy: True  # noqa: E731
+    cam = _camera_at_origin()
+    tr = WorldTracker()
+    tr.add_returns(0.0, [[7.0, 2.0]], cov, everywhere)
+    tr.add_returns(0.1, [[7.0, 2.05]], cov, everywhere)  # confirmed
+    (beside,) = tr.add_returns(0.1, [[1.0, 4.0]], cov, everywhere)  # bearing 76 deg: out of view
+    assert len(tr.tracks) == 2
+    tr.add_frame(0.2, [], camera=cam)
+    assert [t.track_id for t in tr.tracks] == [beside] and len(tr.cleared) == 1
+    assert tr.add_returns(0.3, [[7.1, 2.0], [7.0, 5.0], [1.0, 4.0]], cov * 3, everywhere)[0] is None
+    assert len(tr.tracks) == 2  # the object starts nothing; 3 m from it, someone new
+    keeps = WorldTracker(WorldTrackerConfig(clear_frames=0))
+    keeps.add_returns(0.0, [[7.0, 2.0]], cov, everywhere)
+    keeps.add_frame(0.2, [], camera=cam)
+    assert len(keeps.tracks) == 1 and not keeps.cleared
+    seen = WorldTracker()
+    for k in range(2):
+        seen.add_frame(float(k), [_placed([7.0, 2.0])], camera=cam)
+    seen.add_frame(2.0, [], camera=cam)  # a person the camera placed and missed once: kept, not cleared
+    assert len(seen.tracks) == 1 and not seen.cleared
 
 
 def test_scans_reach_the_tracker_at_their_own_rate_in_time_order_with_late_frames():
@@ -253,15 +332,15 @@ def test_a_texter_lost_from_view_is_seen_by_the_near_field_and_passed_not_waited
         assert m["reached_goal"] and m["pedestrians"][0]["min_distance"] >= 2.5 and m["road_departure_max"] == 0.0
 
 
-def _lane_crossing(repo_root, seed: int, run: int, near: float, rate: float | None = None) -> dict:
+def _lane_crossing(repo_root, seed: int, run: int, near: float, rate: float | None = None, **sensing) -> dict:
     """Run ``run`` of ``lane_crossings.py --seed seed [--rate rate]`` (the scenario's 1 frame/s by
-    default) with ``near`` m of near-field sensor."""
+    default) with ``near`` m of near-field sensor (and other ``[sensing]`` options)."""
     lc = _benchmark(repo_root, "lane_crossings")
     base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
     rng = np.random.default_rng(seed)
     for _ in range(run + 1):
         sc = lc.variant(base, rng)
-    world = dataclasses.replace(sc, sensing=dataclasses.replace(sc.sensing, near_range=near))
+    world = sc.with_options(sensing={"near_range": near, **sensing})
     return run_drive(world, sensing="keypoints", seed=run, state="perceived", capture_rate=rate).metrics()
 
 
@@ -309,3 +388,24 @@ def test_a_crosser_only_the_sensor_showed_is_yielded_to(repo_root, rate):
     m = _lane_crossing(repo_root, 5, 77, 10.0, rate)
     assert m["reached_goal"] and m["road_departure_max"] == 0.0
     assert m["pedestrians"][0]["min_distance"] >= 2.5
+
+
+@pytest.mark.slow
+def test_a_pole_the_camera_looked_at_no_longer_slows_the_car(repo_root, monkeypatch):
+    """Lane crossing run 4 (seed 0, 1 frame/s) on a street with clutter (1 object per 10 m of
+    sidewalk): every pole the sensor returns while the car is slow becomes a person of trust 0, and
+    the car, held near the sensor's 3 m/s while new ones appear, arrives 3.8 s after the same drive
+    without clutter. The poles the camera looked at and found no person in are cleared, and more
+    than half of that time comes back; R is kept and the goal reached either way."""
+    from trustnav.sim.driving.world import SensingSpec
+
+    clean = _lane_crossing(repo_root, 0, 4, 10.0)
+    cleared = _lane_crossing(repo_root, 0, 4, 10.0, near_clutter=1.0)
+    tracker = SensingSpec.tracker
+    monkeypatch.setattr(
+        SensingSpec, "tracker", lambda self, *a, **k: dataclasses.replace(tracker(self, *a, **k), clear_frames=0)
+    )
+    kept = _lane_crossing(repo_root, 0, 4, 10.0, near_clutter=1.0)
+    for m in (clean, cleared, kept):
+        assert m["reached_goal"] and m["margin_violations"] == 0
+    assert kept["time_to_goal"] - cleared["time_to_goal"] > 0.5 * (kept["time_to_goal"] - clean["time_to_goal"]) > 1.0
