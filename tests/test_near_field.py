@@ -224,7 +224,7 @@ def test_the_near_field_returns_the_streets_clutter_as_it_returns_people(repo_ro
     from the pedestrians' count on); without clutter, the people only; a seed, one street."""
     base = load_drive_scenario(repo_root / "examples" / "scenarios" / "lane-crossing.toml")
     n = len(base.pedestrians)
-    dense = base.with_options(sensing={"near_clutter": 5.0})
+    dense = base.with_options(sensing={"near_range": 10.0, "near_clutter": 5.0})
     env = DriveEnvironment(dense, seed=1)
     scan = env.scan()
     assert scan is not None and (scan.indices >= n).any()
@@ -232,7 +232,7 @@ def test_the_near_field_returns_the_streets_clutter_as_it_returns_people(repo_ro
         if k >= n:
             assert np.hypot(*(xy - env.clutter[k - n])) < 4 * dense.sensing.near_sigma
     assert np.array_equal(env.clutter, DriveEnvironment(dense, seed=1).clutter)
-    plain = DriveEnvironment(base, seed=1)
+    plain = DriveEnvironment(base.with_options(sensing={"near_range": 10.0}), seed=1)
     assert plain.clutter.shape == (0, 2) and (plain.scan().indices < n).all()
 
 
