@@ -375,6 +375,20 @@ def _shared(t: WorldTrack, e: GroundEstimate, cfg: WorldTrackerConfig) -> float:
     return cfg.error_shared * math.exp(-0.5 * (d / cfg.pose_change) ** 2)
 
 
+def _standing(camera: CameraPose, ground: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    """Head, middle and feet (3K, 3) of a person standing at each ground point (K of (2,)), the
+    camera at about head height."""
+    z = float(camera.position[2])
+    return np.array([[g[0], g[1], z - h] for g in ground for h in (0.0, 0.8, 1.6)])
+
+
+def _wholly_in_view(camera: CameraPose, ground: list[NDArray[np.float64]]) -> bool:
+    """Whether a person standing at each ground point would be wholly inside ``camera``'s image,
+    her middle more than a metre ahead (where a frame that misses her says she is not there)."""
+    body = _standing(camera, ground)
+    return bool(camera.in_view(body).all()) and float(camera.to_camera(body[1::3])[:, 2].min()) > 1.0
+
+
 class WorldTracker:
     """Follows the people of successive frames on the ground (call :meth:`add_frame` once per frame,
     in time order; :meth:`predict` at any later time)."""
@@ -583,16 +597,13 @@ class WorldTracker:
                 continue
             if unseen > 0.0 and camera is not None:
                 xy = t.mean[:2] if to_world is None else np.asarray(to_world).T @ t.mean[:2]
-                # head, middle and feet of a person standing there (camera at about head height)
-                z = camera.position[2]
-                body = np.array([[xy[0], xy[1], z], [xy[0], xy[1], z - 0.8], [xy[0], xy[1], z - 1.6]])
-                mid = camera.to_camera(body[1:2])[0]
+                mid = camera.to_camera(_standing(camera, [xy])[1:2])[0]  # her middle
                 depth = float(mid[2])
                 if depth < -cfg.behind:
                     continue
                 # should have been seen: the whole body in the image (near the car, or at the image's
                 # edge, a person is cut off and often missed: they are kept as out of view)
-                visible = bool(camera.in_view(body).all()) and depth > 1.0
+                visible = _wholly_in_view(camera, [xy])
                 if unseen > (cfg.keep_seconds if visible else cfg.out_of_view_seconds):
                     continue
                 # beside or behind the camera's horizontal view (not merely cut off in front of
@@ -623,11 +634,9 @@ class WorldTracker:
         ahead, right = np.asarray(camera.forward, dtype=float)[:2], np.asarray(camera.right, dtype=float)[:2]
         ahead, right = ahead / np.linalg.norm(ahead), right / np.linalg.norm(right)
         wide, deep = 0.5 + 2.0 * sigma, 2.0 * sigma
-        ground = [xy + a * wide * right + b * deep * ahead for a in (-1, 0, 1) for b in (-1, 0, 1)]
-        z = camera.position[2]
-        body = np.array([[g[0], g[1], h] for g in ground for h in (z, z - 0.8, z - 1.6)])
-        depth = camera.to_camera(body)[:, 2]
-        if not (camera.in_view(body).all() and depth.min() > 1.0):
+        if not _wholly_in_view(
+            camera, [xy + a * wide * right + b * deep * ahead for a in (-1, 0, 1) for b in (-1, 0, 1)]
+        ):
             return False
         t.looks += 1
         if t.looks < n:
