@@ -10,6 +10,7 @@ injected as the ``carla`` module. A test with a real server skips when none answ
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import fnmatch
 import json
 import math
@@ -137,6 +138,10 @@ class _Vehicle(_Actor):
     def apply_control(self, control) -> None:
         self.control = control
 
+    def set_target_velocity(self, v) -> None:
+        yaw = math.radians(self.transform.rotation.yaw)
+        self.speed = v.x * math.cos(yaw) + v.y * math.sin(yaw)
+
     def step(self, dt: float) -> None:
         """Kinematic bicycle in CARLA's frame: positive steer turns right, i.e. yaw grows (+x toward +y)."""
         c = self.control
@@ -184,6 +189,8 @@ class _Walker(_Actor):
             self.transform.location.x += dt * s * d.x
             self.transform.location.y += dt * s * d.y
             self.velocity = _Vec(s * d.x, s * d.y, 0.0)
+        elif self.control is not None:  # speed 0: it stands
+            self.velocity = _Vec(0.0, 0.0, 0.0)
 
 
 class _Camera(_Actor):
@@ -643,6 +650,63 @@ def test_flip_y_frame_drives_the_mirrored_placement(server, listening_port):
     assert att["final_trust"] > dis["final_trust"] and att["min_distance"] < dis["min_distance"]
     assert np.allclose(r.ego[0], [33.5, 129.0, -math.pi / 2, 0.0])  # back in scenario coordinates
     _assert_clean(server)
+
+
+@pytest.mark.parametrize("caution", [True, False], ids=["caution", "paper"])
+def test_a_walker_steps_out_on_carla_as_her_behaviour_says_and_the_cautious_car_keeps_r(server, listening_port,
+                                                                                      caution):  # fmt: skip
+    """step-out.toml on (the fake) CARLA: the texter stands at the kerb until her ``start_time``, then
+    walks across in her moving pose (before, the bridge walked every walker at its velocity from
+    t = 0); the trust-aware caution slows the car and keeps R from her, the paper's controller does
+    not (issue 34: it works in CARLA)."""
+    from pathlib import Path
+
+    from trustnav.carla_bridge.world import run_carla_drive_episode
+
+    sc = load_drive_scenario(Path(__file__).parents[1] / "examples" / "scenarios" / "step-out.toml")
+    sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=caution))
+    start = sc.pedestrians[0].behaviour.start_time
+    r = run_carla_drive_episode(fake_carla(server), sc, _options(listening_port), sensing="keypoints")
+    texter = r.pedestrians[:, 0]
+    before, after = r.times < start - 0.05, r.times > start + 1.0
+    assert np.allclose(texter[before], sc.pedestrians[0].position, atol=1e-6)  # she stands until her step-out
+    walked = texter[after][0] - texter[before][-1]
+    assert walked[0] < -1.0 and abs(walked[1]) < 1e-6  # then walks across the lane (-x) at 1.4 m/s
+    walker = next(a for a in server.spawned if isinstance(a, _Walker))
+    assert walker.blend == 1.0 and walker.bones_set is not None  # posed as she texts, walking too
+    m = r.metrics()
+    closest = float(r.distances[:, 0].min())
+    if caution:
+        assert closest >= sc.control.safety_radius and m["reached_goal"] and m["road_departure_max"] == 0.0
+    else:
+        assert closest < sc.control.safety_radius  # the paper's controller meets her late
+    _assert_clean(server)
+
+
+def test_a_walker_walks_her_path_and_waits_at_the_kerb_for_a_gap_on_carla(server, listening_port):
+    """kerb-gap.toml on (the fake) CARLA: the crosser walks to the kerb, waits there while the car's
+    gap is short, then crosses to her last waypoint and stands; the car reaches the goal keeping R."""
+    from pathlib import Path
+
+    from trustnav.carla_bridge.world import run_carla_drive_episode
+
+    sc = load_drive_scenario(Path(__file__).parents[1] / "examples" / "scenarios" / "kerb-gap.toml")
+    kerb, end = (np.array(w) for w in sc.pedestrians[0].behaviour.waypoints)
+    r = run_carla_drive_episode(fake_carla(server), sc, _options(listening_port), sensing="keypoints")
+    crosser = r.pedestrians[:, 0]
+    at_kerb = np.hypot(*(crosser - kerb).T) < 0.06
+    assert at_kerb.sum() * (r.times[1] - r.times[0]) > 0.5  # she waited for a gap (1.1 s in trustnav's world)
+    assert np.hypot(*(crosser[-1] - end)) < 0.06  # then crossed to her last point and stands there
+    m = r.metrics()
+    assert m["reached_goal"] and float(r.distances.min()) >= sc.control.safety_radius
+    _assert_clean(server)
+
+
+def test_every_pose_of_a_pedestrian_can_be_posed_on_carla():
+    from trustnav.carla_bridge.posing import BONE_POSES
+    from trustnav.sim.driving import body
+
+    assert set(body.POSES) <= set(BONE_POSES)
 
 
 def test_render_sensing_perceives_carlas_image(server, listening_port):

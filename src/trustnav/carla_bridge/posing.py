@@ -4,7 +4,8 @@ trustnav's poses (body.py): attentive = neutral stance (CARLA's idle animation i
 the head toward the car comes from the walker's yaw, as the authors turned theirs 60 deg);
 distracted = neck bent ~35 deg, upper arms down along the torso, forearms raised with the elbows
 bent ~90 deg, hands in front of the chest (a phone held in both hands). walking = CARLA's own walk
-animation (``WalkerControl``).
+animation (``WalkerControl``). texting_walk (a behaviour's moving pose) = distracted's upper body;
+with ``blend_pose(1.0)`` CARLA may hold the legs still while the walker moves (not verified).
 
 A pose is a set of rotation offsets (degrees, added to pitch / yaw / roll of a bone's transform
 relative to its parent) for bones found by name in ``walker.get_bones()`` (case-insensitive
@@ -49,17 +50,20 @@ class BoneOffset:
         return all(k in b for k in self.keywords) and not any(e in b for e in self.exclude)
 
 
+_TEXTING = (
+    BoneOffset(("neck",), pitch=20.0),
+    BoneOffset(("head",), pitch=15.0),
+    BoneOffset(("arm", "__l"), pitch=-10.0, exclude=("fore",)),
+    BoneOffset(("arm", "__r"), pitch=-10.0, exclude=("fore",)),
+    BoneOffset(("forearm", "__l"), yaw=-80.0),
+    BoneOffset(("forearm", "__r"), yaw=80.0),
+)
+
 BONE_POSES: dict[str, tuple[BoneOffset, ...]] = {
     "attentive": (),
     "walking": (),
-    "distracted": (
-        BoneOffset(("neck",), pitch=20.0),
-        BoneOffset(("head",), pitch=15.0),
-        BoneOffset(("arm", "__l"), pitch=-10.0, exclude=("fore",)),
-        BoneOffset(("arm", "__r"), pitch=-10.0, exclude=("fore",)),
-        BoneOffset(("forearm", "__l"), yaw=-80.0),
-        BoneOffset(("forearm", "__r"), yaw=80.0),
-    ),
+    "distracted": _TEXTING,
+    "texting_walk": _TEXTING,
 }
 
 
@@ -88,9 +92,10 @@ def bone_targets(bones: Any, pose: str) -> list[tuple[str, tuple[float, float, f
 
 def pose_walker(carla: ModuleType | Any, walker: Any, pose: str) -> int:
     """Pose ``walker`` (a carla.Walker) as trustnav's ``pose``; returns the number of bones set
-    (0: the walker keeps its animation)."""
+    (0: the walker shows its animation, a pose set before released)."""
     targets = bone_targets(walker.get_bones(), pose)
     if not targets:
+        walker.blend_pose(0.0)
         return 0
     c = carla
     control = c.WalkerBoneControlIn(

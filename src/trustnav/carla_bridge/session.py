@@ -231,7 +231,8 @@ class CarlaSession:
         self.world.apply_settings(settings)
 
     def spawn(self) -> None:
-        """The ego at the scenario's start, its camera, the walkers; one tick to place them."""
+        """The ego at the scenario's start (at its ``ego_speed``), its camera, the walkers; one tick to
+        place them."""
         c, o, sc = self.carla, self.options, self.scenario
         lib = self.world.get_blueprint_library()
         bp = lib.find(o.vehicle_blueprint)
@@ -241,6 +242,9 @@ class CarlaSession:
         x, y, z = o.frame.to_carla(*sc.ego_start, ground + o.ego_z)
         tf = c.Transform(c.Location(x=x, y=y, z=z), c.Rotation(yaw=o.frame.yaw_to_carla(sc.ego_yaw)))
         self.vehicle = self._spawn(bp, tf, f"ego vehicle {o.vehicle_blueprint} at {_xy(x, y)}")
+        if sc.ego_speed > 0:  # already moving, as the scenario starts it (applied at the first tick)
+            vx, vy = o.frame.vector_to_carla(sc.ego_speed * math.cos(sc.ego_yaw), sc.ego_speed * math.sin(sc.ego_yaw))
+            self.vehicle.set_target_velocity(c.Vector3D(x=vx, y=vy, z=0.0))
         cam = sc.camera
         cbp = lib.find("sensor.camera.rgb")
         attrs = {"image_size_x": cam.width, "image_size_y": cam.height, "fov": o.fov_deg or cam.fov_deg,

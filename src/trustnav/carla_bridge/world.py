@@ -3,7 +3,9 @@
 :class:`CarlaWorld` reads the ego and the walkers from CARLA (converted to the scenario's
 coordinates by the session's :class:`MapFrame`), applies the controller's command as a
 ``VehicleControl`` (pedals and normalised steer, :mod:`trustnav.carla_bridge.control`), keeps the
-walkers walking (``WalkerControl``) and advances CARLA by ``world.tick()`` in synchronous mode, one
+walkers walking (``WalkerControl``: at their constant velocity, or as their ``[pedestrian.behaviour]``
+says: standing until a step-out, along a path, waiting at a kerb for a gap, in their moving pose)
+and advances CARLA by ``world.tick()`` in synchronous mode, one
 tick per control period. What the camera sees goes through the physical frame
 (:func:`carla_to_physical`), where trustnav's camera model and pedestrian bodies (placed at the
 walkers, with their yaws) project as CARLA's camera does: keypoint sensing projects those bodies,
@@ -36,6 +38,7 @@ from trustnav.carla_bridge.posing import pose_walker
 from trustnav.carla_bridge.session import CarlaError, CarlaOptions, CarlaSession
 from trustnav.geometry.camera import CameraPose, CameraSpec
 from trustnav.sim.driving import body
+from trustnav.sim.driving.behaviour import PedestrianMotion
 from trustnav.sim.driving.episode import DriveEnvironment, DriveResult, drive, make_sensor, prepare_scenario
 from trustnav.sim.driving.world import DriveScenario
 
@@ -62,11 +65,14 @@ class CarlaWorld:
         self._image: Any = None  # the camera's latest carla.Image
         self._rgb: NDArray[np.uint8] | None = None
         self._frame_id: int | None = session.first_frame
+        # behaving walkers follow the same behaviour model as trustnav's own world, from where CARLA has them
+        self.motions: list[PedestrianMotion | None] = [
+            None if p.behaviour is None else PedestrianMotion(p.position, p.velocity, p.behaviour)
+            for p in session.scenario.pedestrians
+        ]
+        self._posed: list[str | None] = [None] * len(self.motions)  # the pose each walker's bones hold
         self._take_images(wait=session.options.sensor_tick == 0)
-        self._walk()
-        if session.options.pose_walkers:
-            for walker, spec in zip(session.walkers, session.scenario.pedestrians, strict=True):
-                pose_walker(self.carla, walker, spec.pose)
+        self._walk(0.0)
 
     @property
     def time(self) -> float:
@@ -103,11 +109,13 @@ class CarlaWorld:
         cam = CameraPose(self.spec, carla_to_physical(loc.x, loc.y, loc.z), physical_yaw(rot.yaw),
                          math.radians(-rot.pitch))  # fmt: skip
         bodies = []
-        for w, p in zip(self.session.walkers, self.session.scenario.pedestrians, strict=True):
+        for j, (w, p) in enumerate(zip(self.session.walkers, self.session.scenario.pedestrians, strict=True)):
             wtf = w.get_transform()
             ground = carla_to_physical(wtf.location.x, wtf.location.y, wtf.location.z - _half_height(w))
+            m = self.motions[j]
+            pose = p.pose if m is None else m.pose(p.pose)
             sk = body.pedestrian_skeleton(
-                p.pose, ground, physical_yaw(wtf.rotation.yaw), self.time, p.appearance,
+                pose, ground, physical_yaw(wtf.rotation.yaw), self.time, p.appearance,
                 look_at=cam.position if p.look_at_camera else None, phase=p.phase, sway=p.sway,
             )  # fmt: skip
             bodies.append((sk, p.appearance))
@@ -134,7 +142,7 @@ class CarlaWorld:
         n = max(1, round(duration / self.delta))
         ego, peds = [], []
         for _ in range(n):
-            self._walk()
+            self._walk(self.delta)
             try:
                 self._frame_id = int(self.session.world.tick(self.session.options.timeout))
             except RuntimeError as exc:
@@ -145,14 +153,30 @@ class CarlaWorld:
             peds.append(self.pedestrian_states()[0])
         return np.array(ego), np.array(peds)
 
-    def _walk(self) -> None:
-        """Walkers with a velocity in the scenario keep walking it (CARLA's WalkerControl)."""
+    def _walk(self, h: float) -> None:
+        """Before each tick (CARLA's WalkerControl): a walker without a behaviour keeps walking its
+        scenario velocity; one with a behaviour (:class:`~trustnav.sim.driving.behaviour.PedestrianMotion`)
+        is advanced ``h`` s (the tick; 0 before the first) from where CARLA has it, with the car where
+        it is, and walks the velocity that gives (speed 0: it stands). With ``pose_walkers`` each
+        walker's bones hold its pose, its moving pose while it walks."""
         c = self.carla
-        for w, p in zip(self.session.walkers, self.session.scenario.pedestrians, strict=True):
-            speed = math.hypot(*p.velocity)
-            if speed > 0:
-                dx, dy = self.frame.vector_to_carla(p.velocity[0] / speed, p.velocity[1] / speed)
+        walkers, specs = self.session.walkers, self.session.scenario.pedestrians
+        ego = self.ego_state() if any(m is not None for m in self.motions) else np.zeros(4)
+        for j, (w, p, m) in enumerate(zip(walkers, specs, self.motions, strict=True)):
+            velocity, pose = p.velocity, p.pose
+            if m is not None:
+                loc = w.get_location()
+                m.position = np.asarray(self.frame.from_carla(loc.x, loc.y)[:2], dtype=float)
+                m.advance(h, ego)
+                velocity, pose = m.velocity, m.pose(p.pose)
+            speed = math.hypot(*velocity)
+            if speed > 0 or m is not None:
+                dx, dy = (1.0, 0.0) if speed == 0 else self.frame.vector_to_carla(velocity[0] / speed,
+                                                                                  velocity[1] / speed)  # fmt: skip
                 w.apply_control(c.WalkerControl(direction=c.Vector3D(x=dx, y=dy, z=0.0), speed=speed))
+            if self.session.options.pose_walkers and pose != self._posed[j]:
+                pose_walker(self.carla, w, pose)
+                self._posed[j] = pose
 
     def _take_images(self, wait: bool) -> None:
         """Keep the newest queued camera image; with ``wait``, block (up to ``image_timeout``) until
