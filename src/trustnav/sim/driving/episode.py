@@ -68,7 +68,7 @@ from trustnav.sim.driving.world import (
     pedestrian_states,
     street_of,
 )
-from trustnav.sim.engine import Decision, EpisodeResult, Observation, Sample, make_mpc, run
+from trustnav.sim.engine import Decision, EpisodeResult, MpcPolicy, Observation, Sample, make_mpc, run
 
 __all__ = [
     "STATES",
@@ -77,6 +77,7 @@ __all__ = [
     "SimWorld",
     "World",
     "drive",
+    "drive_controller",
     "drive_metrics",
     "drive_result",
     "make_sensor",
@@ -690,15 +691,25 @@ def drive(
     sc = environment.scenario
     if max_frames is not None:
         environment.max_frames = max_frames
-    config = sc.control.config(environment.capture_rate, sc.sensing.perception_latency, sc.camera)
-    model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
-    policy = make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road, sc.vehicle))
+    policy = drive_controller(sc, environment.capture_rate)
 
     def report(_k: int, _obs: Observation, _d: Decision) -> None:
         if progress is not None:
             progress(environment.time, sc.duration)
 
     return drive_result(environment, sensing, run(environment, policy, on_step=report))
+
+
+def drive_controller(scenario: DriveScenario, capture_rate: float) -> MpcPolicy:
+    """The trust-aware MPC of every drive of ``scenario``, its camera at ``capture_rate`` frames/s
+    (which, with the perception latency, sets the caution's reaction time): its ``[vehicle]`` model,
+    its lane, its ``[control]`` (caution, yielding told what the camera sees) and its road's edges
+    as barriers. ``.controller`` is the :class:`~trustnav.control.MpcController`, for a loop of
+    one's own (the Gymnasium environment: ``examples/gym_mpc.py``)."""
+    sc = scenario
+    config = sc.control.config(capture_rate, sc.sensing.perception_latency, sc.camera)
+    model, cost = sc.vehicle.model(), sc.control.cost(sc.ego_start, sc.goal)
+    return make_mpc(model, cost, config, timed=True, barriers=sc.control.barriers(sc.road, sc.vehicle))
 
 
 def drive_result(environment: DriveEnvironment, sensing: str, episode: EpisodeResult) -> DriveResult:

@@ -19,10 +19,15 @@ silently clipped.
 
 Observation: ``ego`` (x, y, yaw, v) and up to ``max_pedestrians`` (K) pedestrians, nearest first,
 zero-padded: ``pedestrians`` (K, 2) positions, ``velocities`` (K, 2), ``covariances`` (K, 4, 4) of
-(x, y, v_x, v_y), ``trusts`` (K,), ``present`` (K,) 1 for a slot that holds a pedestrian; ``time``.
+(x, y, v_x, v_y), ``trusts`` (K,), ``present`` (K,) 1 for a slot that holds a pedestrian; ``time``;
+and when the camera last saw each: ``seen_times`` (K,), the (x, y, v_x, v_y) it estimated then,
+``seen_states`` (K, 4), and their covariances, ``seen_covariances`` (K, 4, 4) (a track coasted out
+of view keeps its last sighting; trustnav's MPC keeps an unseen pedestrian from it).
 With ``state="perceived"`` (default) they are the camera's world tracks (positions from the image,
 trust per track, 0 until a track has one); with ``state="true"`` the world's pedestrians in
-scenario order (with the scenario's noise, covariances 0) and trusts from perception.
+scenario order (with the scenario's noise, covariances 0; seen now) and trusts from perception.
+trustnav's own trust-aware MPC drives the environment from these (the controller of ``trustnav
+drive``, :func:`~trustnav.sim.driving.episode.drive_controller`; ``examples/gym_mpc.py``).
 
 Episode end, each reported in ``info`` (``collision``, ``off_road``, ``reached_goal``, ``time_out``
 and ``reason``, one of "collision", "off_road", "goal", "time" or None), first match wins:
@@ -185,6 +190,9 @@ class DriveEnv(gym.Env):
                 "trusts": spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float64),
                 "present": spaces.MultiBinary(n),
                 "time": spaces.Box(0.0, big, shape=(1,), dtype=np.float64),
+                "seen_times": spaces.Box(0.0, big, shape=(n,), dtype=np.float64),
+                "seen_states": spaces.Box(-big, big, shape=(n, 4), dtype=np.float64),
+                "seen_covariances": spaces.Box(-big, big, shape=(n, 4, 4), dtype=np.float64),
             }
         )
         self.sim = self.rollout = None  # a new configuration needs a reset
@@ -285,6 +293,13 @@ class DriveEnv(gym.Env):
             cov[:m] = o.covariances[order]
         present = np.zeros(k, dtype=np.int8)
         present[:m] = 1
+        seen_t, seen_x, seen_p = np.zeros(k), np.zeros((k, 4)), np.zeros((k, 4, 4))
+        if o.last_seen is not None:
+            ls_x, ls_p, ls_t = (np.asarray(a, dtype=float) for a in o.last_seen)
+            seen_x[:m], seen_p[:m], seen_t[:m] = ls_x[order], ls_p[order], ls_t[order]
+        else:  # exact states, seen now
+            seen_x[:m] = np.hstack([pos[:m], vel[:m]])
+            seen_p[:m], seen_t[:m] = cov[:m], o.time
         return {
             "ego": o.ego,
             "pedestrians": pos,
@@ -293,6 +308,9 @@ class DriveEnv(gym.Env):
             "trusts": tr,
             "present": present,
             "time": np.array([o.time]),
+            "seen_times": seen_t,
+            "seen_states": seen_x,
+            "seen_covariances": seen_p,
         }
 
     def _info(self, reason: str | None) -> dict[str, Any]:
