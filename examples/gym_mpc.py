@@ -55,7 +55,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--caution", choices=["on", "off"], help="override the file's [control] caution")
     args = ap.parse_args()
-    sc = load_drive_scenario(args.scenario)
+    try:
+        sc = load_drive_scenario(args.scenario)
+    except ValueError as exc:
+        ap.error(f"--scenario: {exc}")
     if args.caution is not None:
         sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, caution=args.caution == "on"))
     obs, info, result = mpc_episode(sc, args.seed)
