@@ -4,7 +4,8 @@
     python examples/gym_mpc.py [--scenario examples/scenarios/step-out.toml] [--seed 0] [--caution on|off]
 
 The controller is built from the scenario (``drive_controller``: its vehicle model, lane,
-``[control]`` and road edges; the camera rate sets the caution's reaction time). Each step it gets
+``[control]`` and road edges; the camera rate sets the caution's reaction time) and stepped as
+every drive steps it (``MpcPolicy.step`` on the engine's ``Observation``). Each step it gets
 the observation's pedestrians (the camera's tracks, with their covariances and trusts) and, for a
 pedestrian it no longer sees, when and where the camera last saw her (``seen_times``,
 ``seen_states``, ``seen_covariances``). Its command (steer rad, accel m/s^2) is the action
@@ -23,6 +24,7 @@ import numpy as np
 
 import trustnav  # noqa: F401  (registers "trustnav/Drive-v0")
 from trustnav.sim.driving import drive_controller, load_drive_scenario
+from trustnav.sim.engine import Observation
 
 
 def mpc_episode(scenario: Any, seed: int = 0, **config: Any) -> tuple[dict, dict, Any]:
@@ -32,16 +34,16 @@ def mpc_episode(scenario: Any, seed: int = 0, **config: Any) -> tuple[dict, dict
     env = gym.make("trustnav/Drive-v0", config={"scenario": scenario, "normalize_actions": False,
                                                 "goal_max_speed": None, **config})  # fmt: skip
     obs, info = env.reset(seed=seed)
-    sim = env.unwrapped.sim
-    mpc = drive_controller(env.unwrapped.scenario, sim.capture_rate).controller
+    policy = drive_controller(env.unwrapped.scenario, env.unwrapped.sim.capture_rate)
     low, high = env.action_space.low.astype(float), env.action_space.high.astype(float)
     done = False
     while not done:
-        k = obs["present"].astype(bool)
-        sol = mpc.step(obs["ego"], obs["pedestrians"][k], obs["velocities"][k], obs["trusts"][k],
-                       time=float(obs["time"][0]), covariances=obs["covariances"][k],
-                       last_seen=(obs["seen_states"][k], obs["seen_covariances"][k], obs["seen_times"][k]))  # fmt: skip
-        action = np.clip(sol.control, low, high)  # within the limits already; rounding only
+        k = obs["present"].astype(bool)  # the filled slots
+        seen = (obs["seen_states"][k], obs["seen_covariances"][k], obs["seen_times"][k])
+        now = Observation(float(obs["time"][0]), obs["ego"], obs["pedestrians"][k], obs["velocities"][k],
+                          obs["trusts"][k], obs["covariances"][k], seen)  # fmt: skip
+        decision = policy.step(now)
+        action = np.clip(decision.control, low, high)  # within the limits already; rounding only
         obs, _reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
     result = env.unwrapped.result()
